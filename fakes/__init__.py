@@ -1,0 +1,5 @@
+"""Simulated devices: a stereo depth camera looking at a wall, and a linear stage.
+
+They share a `FakeWorld`, so moving the fake stage (or a simulated serial controller)
+moves the wall the fake camera sees.
+"""
