@@ -1,0 +1,236 @@
+"""A simulated stereo depth camera looking at the wall of a `FakeWorld`.
+
+Defaults are those of a RealSense D435 depth stream at 848x480: fx = fy = 425 px, baseline
+50 mm, depth unit 1 mm, 30 fps. A smaller image bins native pixels (see `fakes.physics`), so
+the range noise is the same at any resolution and only the number of samples changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any, Iterator
+
+import numpy as np
+
+from drivers.camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, Intrinsics
+from drivers.errors import CameraError
+
+from .effects import Effect, parse_effects
+from .physics import NATIVE_FX_PX, NATIVE_WIDTH, FrameContext, SensorPhysics, StopField, base_truth, build_field
+from .world import FakeWorld
+
+EXPOSURE_RANGE_US = (1.0, 165000.0)
+GAIN_RANGE = (16.0, 248.0)
+#: digital numbers per photo-electron of the IR image at gain 16 (x1)
+IR_DN_PER_E = 0.05
+
+
+class FakeCamera(DepthCamera):
+    """Renders depth (and left IR) frames of a flat matte wall with the paper's noise physics.
+
+    effects: extra physical effects (see `fakes.effects`), e.g. [NoiseFloor(0.03)].
+    fail_at_frame: raise a CameraError when this frame number is reached (a simulated unplug).
+    """
+
+    name = "fake-camera"
+
+    def __init__(
+        self,
+        world: FakeWorld,
+        *,
+        width: int = NATIVE_WIDTH,
+        height: int = 480,
+        baseline_m: float = 0.050,
+        depth_scale_m: float = 0.001,
+        fps: float = 30.0,
+        physics: SensorPhysics | None = None,
+        effects: list[Effect] | None = None,
+        seed: int = 0,
+        fail_at_frame: int | None = None,
+        serial: str = "FAKE-0001",
+    ):
+        self.world = world
+        scale = width / NATIVE_WIDTH
+        self.intrinsics = Intrinsics(
+            width=width,
+            height=height,
+            fx=NATIVE_FX_PX * scale,
+            fy=NATIVE_FX_PX * scale,
+            cx=(width - 1) / 2.0,
+            cy=(height - 1) / 2.0,
+        )
+        self.baseline_m = baseline_m
+        self.depth_scale_m = depth_scale_m
+        self.fps = fps
+        self.physics = physics or SensorPhysics()
+        self.effects = list(effects or [])
+        self.seed = seed
+        self.fail_at_frame = fail_at_frame
+        self.serial = serial
+        self._rng = np.random.default_rng(seed)
+        self._settings = CameraSettings()
+        self._open = False
+        self._frame_number = 0
+        self._opened_at_s = 0.0
+        self._field_key: tuple | None = None
+        self._field: StopField | None = None
+        self._dots = np.random.default_rng(seed + 7919).choice(np.array([0.2, 1.0], np.float32), size=(height, width))
+
+    @classmethod
+    def from_options(cls, world: FakeWorld, options: dict[str, str]) -> "FakeCamera":
+        """Build from device-string options: width, height, depth_unit_mm, seed, fps, effects, fail_at_frame."""
+        known = {"width", "height", "depth_unit_mm", "seed", "fps", "effects", "fail_at_frame", "baseline_mm"}
+        unknown = set(options) - known
+        if unknown:
+            raise CameraError(f"fake camera: unknown option(s) {sorted(unknown)}; it takes {sorted(known)}")
+        try:
+            width = int(options.get("width", NATIVE_WIDTH))
+            height = int(options.get("height", round(width * 480 / NATIVE_WIDTH)))
+            return cls(
+                world,
+                width=width,
+                height=height,
+                depth_scale_m=float(options.get("depth_unit_mm", 1.0)) / 1000.0,
+                baseline_m=float(options.get("baseline_mm", 50.0)) / 1000.0,
+                seed=int(options.get("seed", 0)),
+                fps=float(options.get("fps", 30.0)),
+                effects=parse_effects(options.get("effects", "")),
+                fail_at_frame=int(options["fail_at_frame"]) if "fail_at_frame" in options else None,
+            )
+        except ValueError as e:
+            raise CameraError(f"fake camera: bad option ({e}); e.g. fake:width=424,depth_unit_mm=0.1") from None
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def open(self) -> None:
+        self._open = True
+        self._opened_at_s = self.world.time_s
+
+    def close(self) -> None:
+        self._open = False
+
+    def info(self) -> CameraInfo:
+        return CameraInfo(
+            model="Fake D435 (simulated)",
+            serial=self.serial,
+            firmware="sim",
+            intrinsics=self.intrinsics,
+            baseline_m=self.baseline_m,
+            depth_scale_m=self.depth_scale_m,
+            extra={
+                "physics": vars(self.physics),
+                "effects": [e.to_dict() for e in self.effects],
+                "seed": self.seed,
+                "fps": self.fps,
+            },
+        )
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d["simulated"] = True
+        return d
+
+    # -- settings --------------------------------------------------------------------------
+    def configure(self, settings: CameraSettings) -> CameraSettings:
+        self._require_open()
+        lo, hi = EXPOSURE_RANGE_US
+        if not lo <= settings.exposure_us <= hi:
+            raise CameraError(f"{self.name}: exposure {settings.exposure_us} us is outside {lo:.0f}-{hi:.0f} us; choose one inside")
+        lo, hi = GAIN_RANGE
+        if not lo <= settings.gain <= hi:
+            raise CameraError(f"{self.name}: gain {settings.gain} is outside {lo:.0f}-{hi:.0f}; choose one inside")
+        self._settings = replace(settings, exposure_us=float(round(settings.exposure_us)), gain=float(round(settings.gain)))
+        return self.read_settings()
+
+    def read_settings(self) -> CameraSettings:
+        return self._settings
+
+    # -- truth, for tests and demos ----------------------------------------------------------
+    def base_truth(self, projector_on: bool | None = None) -> tuple[float, float]:
+        """(k, lambda) of the base physics without effects, at the current exposure."""
+        s = self._settings
+        return base_truth(
+            self.physics,
+            fx=self.intrinsics.fx,
+            baseline_m=self.baseline_m,
+            width=self.intrinsics.width,
+            height=self.intrinsics.height,
+            exposure_us=s.exposure_us,
+            projector_on=s.projector_on if projector_on is None else projector_on,
+        )
+
+    def current_field(self) -> StopField:
+        """The per-pixel field for the wall's present position and the present settings."""
+        s, wall = self._settings, self.world.wall
+        key = (wall.distance_m, wall.tilt_deg, s.projector_on, s.exposure_us, s.gain)
+        if key != self._field_key:
+            i = self.intrinsics
+            self._field = build_field(
+                self.physics,
+                shape=(i.height, i.width),
+                fx=i.fx,
+                fy=i.fy,
+                cx=i.cx,
+                cy=i.cy,
+                baseline_m=self.baseline_m,
+                distance_m=wall.distance_m,
+                tilt_deg=wall.tilt_deg,
+                projector_on=s.projector_on,
+                exposure_us=s.exposure_us,
+                gain=s.gain,
+                effects=self.effects,
+            )
+            self._field_key = key
+        assert self._field is not None
+        return self._field
+
+    # -- frames ----------------------------------------------------------------------------
+    def frames(self, n: int, *, ir: bool = False) -> Iterator[Frame]:
+        self._require_open()
+        f = self.current_field()
+        d_true = f.d_true_px.astype(np.float32)
+        sigma_d = np.sqrt(f.sigma_d2_px2).astype(np.float32)
+        units_per_px = np.float32(f.fb_px_m / self.depth_scale_m)  # Z/unit = (f b / unit) / d
+        meta = FrameMetadata(
+            exposure_us=self._settings.exposure_us,
+            gain=self._settings.gain,
+            projector_on=self._settings.projector_on,
+            auto_exposure=self._settings.auto_exposure,
+        )
+        frame_effects = [e for e in self.effects if type(e).frame is not Effect.frame]
+        for i in range(n):
+            if self.fail_at_frame is not None and self._frame_number >= self.fail_at_frame:
+                raise CameraError(f"{self.name}: device disconnected at frame {self._frame_number}; reconnect it and re-run with --resume")
+            d = self._rng.standard_normal(d_true.shape, dtype=np.float32)
+            d *= sigma_d
+            d += d_true
+            valid = f.valid.copy()
+            if frame_effects:
+                ctx = FrameContext(f, self._rng, self.world.time_s - self._opened_at_s, i)
+                for e in frame_effects:
+                    e.frame(ctx, d, valid)
+            valid &= d > 0
+            with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+                z_units = np.rint(units_per_px / d)
+            valid &= (z_units > 0) & (z_units < 65535)
+            depth = np.where(valid, z_units, 0).astype(np.uint16)
+            frame = Frame(
+                depth=depth,
+                frame_number=self._frame_number,
+                timestamp_ms=self.world.time_s * 1000.0,
+                metadata=meta,
+                ir=self._render_ir(f) if ir else None,
+            )
+            self._frame_number += 1
+            self.world.time_s += 1.0 / self.fps
+            yield frame
+
+    def _render_ir(self, f: StopField) -> np.ndarray:
+        """Left IR image in DN (uint8): pattern dots (projector on) or texture, plus ambient, with shot noise."""
+        e = (f.signal_e * self._dots + f.ambient_e) / f.binning
+        noisy = e + np.sqrt(e) * self._rng.standard_normal(e.shape, dtype=np.float32)
+        dn = noisy * IR_DN_PER_E * (self._settings.gain / 16.0)
+        return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
+
+    def _require_open(self) -> None:
+        if not self._open:
+            raise CameraError(f"{self.name}: not open; use it as a context manager ('with camera:') or call open()")

@@ -1,0 +1,197 @@
+"""Physical effects the fake camera can switch on, each with a name and parameters.
+
+Every effect overrides only the hooks it needs (see `fakes.physics` for the pipeline):
+  illumination(field)     scale field.signal_e / add field.ambient_e
+  image_noise(field)      add to field.image_var_e2
+  disparity_noise(field)  add to field.sigma_d2_px2
+  frame(ctx, d_px, valid) change one frame's disparities (px) or validity, in place
+Names match the model effects in `rig.effects`, so what is simulated can be looked for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .physics import FrameContext, StopField
+
+EFFECTS: dict[str, type["Effect"]] = {}
+
+
+def register(cls: type["Effect"]) -> type["Effect"]:
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+@dataclass
+class Effect:
+    """Base class: a named effect with parameters; hooks do nothing by default."""
+
+    name: ClassVar[str] = "effect"
+
+    def illumination(self, f: StopField) -> None: ...
+
+    def image_noise(self, f: StopField) -> None: ...
+
+    def disparity_noise(self, f: StopField) -> None: ...
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None: ...
+
+    def params(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, **self.params()}
+
+
+def make_effect(name: str, **params: Any) -> Effect:
+    """Build an effect by name, e.g. make_effect('noise_floor', sigma_px=0.03)."""
+    if name not in EFFECTS:
+        raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(sorted(EFFECTS))}")
+    cls = EFFECTS[name]
+    allowed = {f.name for f in fields(cls)}
+    unknown = set(params) - allowed
+    if unknown:
+        raise ValueError(f"effect {name!r} has no parameter(s) {sorted(unknown)}; it takes {sorted(allowed)}")
+    return cls(**params)
+
+
+def parse_effects(text: str) -> list[Effect]:
+    """Parse 'noise_floor(sigma_px=0.03)+slant_range' into effects."""
+    out: list[Effect] = []
+    for part in filter(None, (p.strip() for p in text.split("+"))):
+        if "(" in part:
+            name, rest = part.split("(", 1)
+            args = rest.rstrip(")")
+            params = {}
+            for kv in filter(None, (a.strip() for a in args.split(","))):
+                k, v = kv.split("=", 1)
+                params[k.strip()] = float(v)
+            out.append(make_effect(name.strip(), **params))
+        else:
+            out.append(make_effect(part))
+    return out
+
+
+@register
+@dataclass
+class NoiseFloor(Effect):
+    """Disparity noise independent of brightness (matcher / subpixel limit), in px.
+
+    sigma_d^2 += sigma_px^2, so it grows as Z^2 in range (eq. error_prop_unassisted).
+    """
+
+    name: ClassVar[str] = "noise_floor"
+    sigma_px: float = 0.03
+
+    def disparity_noise(self, f: StopField) -> None:
+        f.sigma_d2_px2 = f.sigma_d2_px2 + self.sigma_px**2
+
+
+@register
+@dataclass
+class ReadNoise(Effect):
+    """Sensor read noise in electrons RMS per pixel, independent of light: var += read_e^2."""
+
+    name: ClassVar[str] = "read_noise"
+    read_e: float = 8.0
+
+    def image_noise(self, f: StopField) -> None:
+        f.image_var_e2 = f.image_var_e2 + self.read_e**2
+
+
+@register
+@dataclass
+class Ambient(Effect):
+    """Uniform ambient light: photon noise without pattern contrast (var += ambient_e).
+
+    ambient_e_per_ms: photo-electrons per ms per native pixel.
+    """
+
+    name: ClassVar[str] = "ambient"
+    ambient_e_per_ms: float = 40.0
+
+    def illumination(self, f: StopField) -> None:
+        f.ambient_e = f.ambient_e + self.ambient_e_per_ms * f.exposure_ms * f.binning
+
+
+@register
+@dataclass
+class SlantRange(Effect):
+    """Projected light falls with the slant range r along each ray, not with Z.
+
+    signal *= (Z / r)^2, r = Z sqrt(1 + xn^2 + yn^2) (paper, "Further effects"). Projector on only.
+    """
+
+    name: ClassVar[str] = "slant_range"
+
+    def illumination(self, f: StopField) -> None:
+        if f.projector_on:
+            f.signal_e = f.signal_e * (f.z_m / f.slant_m) ** 2
+
+
+@register
+@dataclass
+class Incidence(Effect):
+    """A matte (Lambertian) wall returns the projected light as cos(incidence angle)."""
+
+    name: ClassVar[str] = "incidence"
+
+    def illumination(self, f: StopField) -> None:
+        if f.projector_on:
+            f.signal_e = f.signal_e * f.cos_incidence
+
+
+@register
+@dataclass
+class Outliers(Effect):
+    """Mismatches: with probability `fraction` a sample's disparity is uniform within +-width_px."""
+
+    name: ClassVar[str] = "outliers"
+    fraction: float = 0.01
+    width_px: float = 1.0
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        hit = ctx.rng.random(d_px.shape, dtype=np.float32) < self.fraction
+        n = int(hit.sum())
+        if n:
+            d_px[hit] = ctx.field.d_true_px[hit] + ctx.rng.uniform(-self.width_px, self.width_px, n)
+
+
+@register
+@dataclass
+class Quantization(Effect):
+    """The matcher reports disparity in steps of step_px (subpixel resolution): var += step^2/12."""
+
+    name: ClassVar[str] = "quantization"
+    step_px: float = 0.125
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        np.multiply(np.round(d_px / self.step_px), self.step_px, out=d_px)
+
+
+@register
+@dataclass
+class Drift(Effect):
+    """Warm-up drift: disparity offset amplitude_px * exp(-t / tau_s), t since the camera opened."""
+
+    name: ClassVar[str] = "drift"
+    amplitude_px: float = 0.05
+    tau_s: float = 30.0
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        d_px += np.float32(self.amplitude_px * np.exp(-ctx.time_s / self.tau_s))
+
+
+@register
+@dataclass
+class Censoring(Effect):
+    """The camera drops matches it is not confident in: |disparity error| > threshold_px reads 0."""
+
+    name: ClassVar[str] = "censoring"
+    threshold_px: float = 0.2
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        valid &= np.abs(d_px - ctx.field.d_true_px) <= self.threshold_px

@@ -1,0 +1,246 @@
+"""What the simulated serial controllers share: a pseudo-terminal, a serving thread, faults,
+and a carriage that takes time to move.
+
+A simulator opens a pty pair, keeps both ends, and answers on the master end from a
+background thread; drivers open the slave end (`.port`, e.g. /dev/pts/5) with pyserial just
+as they would open /dev/ttyUSB0.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+#: faults every simulator accepts in `inject()`
+COMMON_FAULTS = ("drop_reply", "noise", "unplug", "position_error")
+
+
+@dataclass
+class Move:
+    """One motion of the carriage: from start_mm towards end_mm, starting at t0_s."""
+
+    start_mm: float
+    end_mm: float
+    t0_s: float
+    speed_mm_s: float
+    #: why the carriage stops at end_mm: "arrived", or a fault ("limit", "stall")
+    outcome: str = "arrived"
+    #: where the carriage really ends (end_mm plus an injected position error)
+    final_mm: float | None = None
+
+    def position_mm(self, now_s: float) -> float:
+        dist = self.end_mm - self.start_mm
+        travelled = min(abs(dist), (now_s - self.t0_s) * self.speed_mm_s)
+        return self.start_mm + np.copysign(travelled, dist)
+
+    def done(self, now_s: float) -> bool:
+        return (now_s - self.t0_s) * self.speed_mm_s >= abs(self.end_mm - self.start_mm)
+
+
+class Carriage:
+    """The simulated carriage on a rail from 0 to travel_mm, with limit switches at both ends."""
+
+    def __init__(self, travel_mm: float, speed_mm_s: float, start_mm: float):
+        self.travel_mm = travel_mm
+        self.speed_mm_s = speed_mm_s
+        self._rest_mm = start_mm
+        self.move: Move | None = None
+
+    def position_mm(self, now_s: float) -> float:
+        return self.move.position_mm(now_s) if self.move else self._rest_mm
+
+    def moving(self) -> bool:
+        return self.move is not None
+
+    def start(self, target_mm: float, now_s: float, *, stop_at_mm: float | None = None,
+              stop_outcome: str = "stall", error_mm: float = 0.0, speed_mm_s: float | None = None) -> None:
+        """Head for target_mm. Beyond the rail the carriage stops at the end ("limit");
+        stop_at_mm stops it early with stop_outcome; error_mm offsets where it really ends."""
+        start = self.position_mm(now_s)
+        end, outcome = target_mm, "arrived"
+        if not 0.0 <= target_mm <= self.travel_mm:
+            end, outcome = min(max(target_mm, 0.0), self.travel_mm), "limit"
+        if stop_at_mm is not None and min(start, end) <= stop_at_mm <= max(start, end):
+            end, outcome = stop_at_mm, stop_outcome
+        final = end + error_mm if outcome == "arrived" else end
+        self.move = Move(start, end, now_s, speed_mm_s or self.speed_mm_s, outcome, final)
+
+    def stop(self, now_s: float) -> None:
+        """Halt at once wherever the carriage is."""
+        self._rest_mm = self.position_mm(now_s)
+        self.move = None
+
+    def update(self, now_s: float) -> str | None:
+        """Finish a move whose time is up; return its outcome, or None while moving or at rest."""
+        if self.move is None or not self.move.done(now_s):
+            return None
+        move, self.move = self.move, None
+        self._rest_mm = move.final_mm if move.final_mm is not None else move.end_mm
+        return move.outcome
+
+
+class PtyController:
+    """A simulated controller on a pseudo-terminal, served by a background thread.
+
+    Subclasses implement `handle_bytes()` (bytes from the driver) and `tick()` (time passing)
+    and reply with `send_line()`. Use as a context manager, or call start() and stop().
+    Faults are set with `inject()`; `commands` and `replies` log the traffic for tests.
+    """
+
+    kind = "pty"
+    faults: tuple[str, ...] = COMMON_FAULTS
+
+    def __init__(self, *, tick_s: float = 0.005, seed: int = 0):
+        self.tick_s = tick_s
+        self.port = ""
+        self.commands: list[str] = []
+        self.replies: list[str] = []
+        self._rng = np.random.default_rng(seed)
+        self._lock = threading.RLock()
+        self._pending: dict[str, dict] = {}
+        self._position_callbacks: list[Callable[[float], None]] = []
+        self._master = self._slave = -1
+        self._wake_r = self._wake_w = -1
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+
+    # --- lifetime -------------------------------------------------------------------------
+
+    def start(self) -> "PtyController":
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        self.port = os.ttyname(self._slave)
+        self._wake_r, self._wake_w = os.pipe()
+        self._stopping.clear()
+        self._thread = threading.Thread(target=self._serve, name=f"{self.kind}-sim {self.port}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and close the pty; the port disappears."""
+        self._stopping.set()
+        if self._wake_w >= 0:
+            try:
+                os.write(self._wake_w, b"x")
+            except OSError:
+                pass
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        self._thread = None
+
+    def __enter__(self) -> "PtyController":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # --- faults and hooks -------------------------------------------------------------------
+
+    def inject(self, fault: str, **params: float) -> None:
+        """Arm a fault. Common ones: drop_reply (ignore the next `count` commands), noise
+        (garble the next `count` replies), unplug (close the pty now), position_error
+        (the next `count` moves end `mm` off target)."""
+        if fault not in self.faults:
+            raise ValueError(f"unknown fault {fault!r}; known: {', '.join(self.faults)}")
+        if fault == "unplug":
+            self.stop()
+            return
+        with self._lock:
+            self._pending[fault] = {"count": 1, **params}
+
+    def clear_faults(self) -> None:
+        with self._lock:
+            self._pending.clear()
+
+    def on_position(self, callback: Callable[[float], None]) -> None:
+        """Call `callback(position_mm)` each time the carriage comes to rest."""
+        self._position_callbacks.append(callback)
+
+    # --- for subclasses -------------------------------------------------------------------
+
+    def take_fault(self, fault: str) -> dict | None:
+        """Use up one occurrence of an armed fault; its parameters, or None if not armed."""
+        with self._lock:
+            params = self._pending.get(fault)
+            if params is None:
+                return None
+            params["count"] -= 1
+            if params["count"] <= 0:
+                del self._pending[fault]
+            return params
+
+    def drop_command(self, text: str) -> bool:
+        """Log a received command; True if an armed drop_reply fault swallows it."""
+        self.commands.append(text)
+        return self.take_fault("drop_reply") is not None
+
+    def send_line(self, text: str) -> None:
+        """Send one reply line (CR LF added), garbled if a noise fault is armed."""
+        data = text.encode("ascii")
+        if self.take_fault("noise") is not None:
+            data = self._garble(data)
+            text = data.decode("latin-1")
+        self.replies.append(text)
+        self.write(data + b"\r\n")
+
+    def write(self, data: bytes) -> None:
+        try:
+            os.write(self._master, data)
+        except OSError:
+            pass
+
+    def rested(self, position_mm: float) -> None:
+        for callback in self._position_callbacks:
+            callback(position_mm)
+
+    def handle_bytes(self, data: bytes, now_s: float) -> None:
+        raise NotImplementedError
+
+    def tick(self, now_s: float) -> None:
+        """Let time pass: finish moves, raise alarms."""
+
+    # --- internals ----------------------------------------------------------------------------
+
+    def _garble(self, data: bytes) -> bytes:
+        """Line noise: flip high bits and scramble bytes, never adding a line end."""
+        noisy = bytearray(data or b"?")
+        for i in range(len(noisy)):
+            if self._rng.random() < 0.5:
+                noisy[i] = (noisy[i] ^ int(self._rng.integers(0x80, 0x100))) & 0xFF
+        noisy[0] |= 0x80
+        return bytes(b if b not in (0x0A, 0x0D) else 0xBF for b in noisy)
+
+    def _serve(self) -> None:
+        try:
+            while not self._stopping.is_set():
+                ready, _, _ = select.select([self._master, self._wake_r], [], [], self.tick_s)
+                now = time.monotonic()
+                if self._master in ready:
+                    try:
+                        data = os.read(self._master, 4096)
+                    except OSError:
+                        data = b""
+                    if data:
+                        with self._lock:
+                            self.handle_bytes(data, now)
+                with self._lock:
+                    self.tick(now)
+        finally:
+            for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+                if fd >= 0:
+                    try:
+                        os.close(fd)
+                    except OSError:
+                        pass
+            self._master = self._slave = self._wake_r = self._wake_w = -1

@@ -1,0 +1,301 @@
+"""The runner: executes a plan's steps against a camera and a stage and records them.
+
+It owns everything the plan leaves out: devices, the file, progress, errors, resuming and
+aborting. Moves and settling are deferred until the capture that needs them, so a resumed
+run skips completed stops without driving the stage through them.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from drivers.camera import CameraSettings, DepthCamera, FrameMetadata
+from drivers.errors import CameraError, DeviceError
+from drivers.stage import Stage
+from rig.recording import CameraCalibration, FrameSeries, RecordingError, RecordingWriter
+from rig.stats import MeanImageAccumulator, PixelMomentAccumulator
+
+from .plan import Capture, Configure, Home, Move, Plan, Settle
+
+#: frames right after a settings change that may still carry the old settings
+MAX_STALE_FRAMES = 30
+#: fraction of a stop's frames that may be refused for wrong metadata before the run stops
+MAX_REFUSED_FRACTION = 0.05
+
+
+class RunError(RuntimeError):
+    """The run stopped; the message says why, what was saved and how to resume."""
+
+
+@dataclass
+class ProgressEvent:
+    """What the runner tells a progress display.
+
+    kind: 'stop_start', 'frame', 'stop_done', 'stop_skipped', 'message', 'done'.
+    """
+
+    kind: str
+    stop: str = ""
+    stop_index: int = 0
+    n_stops: int = 0
+    frame: int = 0
+    n_frames: int = 0
+    text: str = ""
+    summary: dict = field(default_factory=dict)
+
+
+ProgressCallback = Callable[[ProgressEvent], None]
+
+
+@dataclass
+class RunResult:
+    path: Path
+    recorded: list[str]
+    skipped: list[str]
+    aborted: bool = False
+
+
+class RunControl:
+    """Pause and abort, safe to set from another thread (a UI)."""
+
+    def __init__(self) -> None:
+        self.abort = threading.Event()
+        self.resume_event = threading.Event()
+        self.resume_event.set()
+
+    def pause(self) -> None:
+        self.resume_event.clear()
+
+    def unpause(self) -> None:
+        self.resume_event.set()
+
+    def wait_if_paused(self) -> None:
+        while not self.resume_event.wait(0.1):
+            if self.abort.is_set():
+                return
+
+
+def settings_mismatch(requested: CameraSettings, reported: CameraSettings | FrameMetadata) -> list[str]:
+    """Human-readable differences between requested settings and what the device reports."""
+    out = []
+    if bool(reported.projector_on) != requested.projector_on:
+        out.append(f"projector {'on' if reported.projector_on else 'off'} (asked {'on' if requested.projector_on else 'off'})")
+    if bool(reported.auto_exposure) != requested.auto_exposure:
+        out.append(f"auto-exposure {'on' if reported.auto_exposure else 'off'} (asked {'on' if requested.auto_exposure else 'off'})")
+    if abs(reported.exposure_us - requested.exposure_us) > max(1.0, 0.01 * requested.exposure_us):
+        out.append(f"exposure {reported.exposure_us:g} us (asked {requested.exposure_us:g} us)")
+    if abs(reported.gain - requested.gain) > 0.5:
+        out.append(f"gain {reported.gain:g} (asked {requested.gain:g})")
+    return out
+
+
+def center_box(shape: tuple[int, int], fraction: float = 0.1) -> tuple[slice, slice]:
+    """The central region (fraction of each side, at least 4 px) for the per-frame series."""
+    h, w = shape
+    bh, bw = max(4, int(h * fraction)), max(4, int(w * fraction))
+    return slice((h - bh) // 2, (h + bh) // 2), slice((w - bw) // 2, (w + bw) // 2)
+
+
+class Runner:
+    """Run plans against one camera and one stage, recording to HDF5."""
+
+    def __init__(self, camera: DepthCamera, stage: Stage, *, progress: ProgressCallback | None = None,
+                 sleep: Callable[[float], None] = time.sleep, control: RunControl | None = None):
+        self.camera = camera
+        self.stage = stage
+        self.progress = progress or (lambda e: None)
+        self.sleep = sleep
+        self.control = control or RunControl()
+
+    def run(self, plan: Plan, path: str | Path, *, resume: bool = False) -> RunResult:
+        path = Path(path)
+        captures = plan.captures()
+        labels = [c.stop for c in captures]
+        if len(set(labels)) != len(labels):
+            raise RunError(f"plan {plan.name!r} has duplicate stop labels; give each capture a unique label")
+        try:
+            writer = RecordingWriter(path, resume=resume)
+        except (RecordingError, OSError) as e:
+            raise RunError(str(e)) from None
+        recorded: list[str] = []
+        skipped: list[str] = []
+        try:
+            with writer, self.camera, self.stage:
+                info = self.camera.info()
+                i = info.intrinsics
+                writer.start_experiment(
+                    protocol=plan.name,
+                    params=plan.params,
+                    camera=self.camera.describe(),
+                    stage=self.stage.describe(),
+                    calibration=CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, info.baseline_m, info.depth_scale_m),
+                )
+                done = writer.completed_stops()
+                pending_move: float | None = None
+                pending_settle = 0.0
+                requested: CameraSettings | None = None
+                needs_home = homed = False
+                for step in plan.steps():
+                    if self.control.abort.is_set():
+                        raise _Aborted()
+                    if isinstance(step, Home):
+                        needs_home, homed = True, False  # home lazily, before the first move that is needed
+                    elif isinstance(step, Move):
+                        pending_move = step.position_m
+                    elif isinstance(step, Settle):
+                        pending_settle += step.seconds
+                    elif isinstance(step, Configure):
+                        requested = step.settings
+                        self._configure(requested)
+                    elif isinstance(step, Capture):
+                        index = labels.index(step.stop)
+                        if step.stop in done:
+                            skipped.append(step.stop)
+                            self.progress(ProgressEvent("stop_skipped", step.stop, index, len(labels), text="already recorded"))
+                        else:
+                            if requested is None:
+                                raise RunError(f"plan {plan.name!r}: capture {step.stop!r} comes before any Configure step; configure the camera first")
+                            commanded = float("nan")
+                            if pending_move is not None:
+                                if needs_home and not homed:
+                                    self.progress(ProgressEvent("message", text=f"homing {self.stage.name}"))
+                                    self.stage.home()
+                                    homed = True
+                                commanded = pending_move
+                                self.stage.check_limits(commanded)
+                                measured = self.stage.move_to(commanded)
+                                self.stage.check_arrived(commanded, measured)
+                            if pending_settle > 0:
+                                self.sleep(pending_settle)
+                            measured = self.stage.position_m() if pending_move is not None else float("nan")
+                            if pending_move is not None:
+                                self.stage.check_arrived(commanded, measured)
+                            self._capture(writer, step, index, len(labels), requested, commanded, measured)
+                            recorded.append(step.stop)
+                        pending_move, pending_settle = None, 0.0
+                writer.finish()
+        except _Aborted:
+            self.progress(ProgressEvent("done", text="aborted"))
+            return RunResult(path, recorded, skipped, aborted=True)
+        except KeyboardInterrupt:
+            raise RunError(self._saved_message(path, recorded, skipped, len(labels), "interrupted")) from None
+        except DeviceError as e:
+            raise RunError(f"{e}\n" + self._saved_message(path, recorded, skipped, len(labels), "stopped")) from None
+        self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
+        return RunResult(path, recorded, skipped)
+
+    @staticmethod
+    def _saved_message(path: Path, recorded: list[str], skipped: list[str], n: int, how: str) -> str:
+        saved = len(recorded) + len(skipped)
+        return f"run {how}: {saved} of {n} stops are saved in {path}; re-run the same command with --resume to record the rest"
+
+    def _configure(self, requested: CameraSettings) -> CameraSettings:
+        got = self.camera.configure(requested)
+        bad = settings_mismatch(requested, got)
+        if bad:
+            raise CameraError(f"{self.camera.name}: settings read back differ from the request: {', '.join(bad)}; "
+                              "check that the camera supports them (and that nothing else controls it)")
+        return got
+
+    def _frames_checked(self, n: int, requested: CameraSettings, *, ir: bool):
+        """Yield n frames whose metadata match the request; skip stale ones, refuse the rest."""
+        accepted = refused = stale = 0
+        settled = False
+        limit_refused = max(1, int(MAX_REFUSED_FRACTION * n))
+        while accepted < n:
+            for frame in self.camera.frames(n - accepted, ir=ir):
+                bad = settings_mismatch(requested, frame.metadata)
+                if bad and not settled and stale < MAX_STALE_FRAMES:
+                    stale += 1
+                    continue
+                settled = True
+                if bad:
+                    refused += 1
+                    if refused > limit_refused:
+                        raise CameraError(f"{self.camera.name}: {refused} frames report {', '.join(bad)}; "
+                                          "the camera is not holding the settings; check auto-exposure and the emitter control")
+                    continue
+                accepted += 1
+                yield frame
+            if stale >= MAX_STALE_FRAMES and not settled:
+                raise CameraError(f"{self.camera.name}: after {MAX_STALE_FRAMES} frames the metadata still report "
+                                  f"{', '.join(bad)}; the camera did not apply the settings")
+        self.refused = refused
+
+    def _capture(self, writer: RecordingWriter, step: Capture, index: int, n_stops: int, requested: CameraSettings,
+                 commanded_m: float, measured_m: float) -> None:
+        info = self.camera.info()
+        shape = (info.intrinsics.height, info.intrinsics.width)
+        self.progress(ProgressEvent("stop_start", step.stop, index, n_stops, n_frames=step.n_frames,
+                                    text=f"at {measured_m:.3f} m" if not math.isnan(measured_m) else ""))
+        g = writer.begin_stop(step.stop, index=index, commanded_position_m=commanded_m, measured_position_m=measured_m,
+                              settings_requested=requested.to_dict(), settings_read_back=self.camera.read_settings().to_dict())
+        raw = writer.raw_frames(g, step.n_frames, shape) if step.keep_raw else None
+        acc = PixelMomentAccumulator(shape, info.depth_scale_m)
+        ir_acc = MeanImageAccumulator()
+        cy, cx = center_box(shape)
+        series = {k: np.empty(step.n_frames, dtype) for k, dtype in (
+            ("frame_number", np.int64), ("timestamp_ms", np.float64), ("center_mean_m", np.float64),
+            ("valid_fraction", np.float32), ("exposure_us", np.float32), ("gain", np.float32), ("projector_on", np.bool_))}
+        self.refused = 0
+        scale = info.depth_scale_m
+        for j, frame in enumerate(self._frames_checked(step.n_frames, requested, ir=step.ir)):
+            self.control.wait_if_paused()
+            if self.control.abort.is_set():
+                raise _Aborted()
+            depth = frame.depth
+            acc.add(depth)
+            if raw is not None:
+                raw[j] = depth
+            if step.ir and frame.ir is not None:
+                ir_acc.add(frame.ir)
+            center = depth[cy, cx]
+            nz = center[center > 0]
+            series["frame_number"][j] = frame.frame_number
+            series["timestamp_ms"][j] = frame.timestamp_ms
+            series["center_mean_m"][j] = nz.mean() * scale if nz.size else np.nan
+            series["valid_fraction"][j] = np.count_nonzero(depth) / depth.size
+            series["exposure_us"][j] = frame.metadata.exposure_us
+            series["gain"][j] = frame.metadata.gain
+            series["projector_on"][j] = frame.metadata.projector_on
+            if j % 10 == 0 or j == step.n_frames - 1:
+                self.progress(ProgressEvent("frame", step.stop, index, n_stops, frame=j + 1, n_frames=step.n_frames))
+        ambient = None
+        if step.ambient_frames > 0:
+            ambient = self._ambient(requested, step.ambient_frames)
+        stats = acc.result()
+        measured_end = self.stage.position_m()
+        fill = float(np.mean(stats.count)) / step.n_frames
+        writer.end_stop(
+            g, stats=stats, series=FrameSeries(**series), ir_mean=ir_acc.result(), ambient_ir_mean=ambient,
+            extra_attrs={"frames_refused": self.refused, "measured_position_end_m": measured_end},
+        )
+        c = stats.count[cy, cx] > 1
+        sigma_c = float(np.sqrt(np.mean(stats.variance_m2[cy, cx][c]))) if c.any() else float("nan")
+        self.progress(ProgressEvent("stop_done", step.stop, index, n_stops, n_frames=step.n_frames,
+                                    summary={"fill_rate": fill, "center_sigma_m": sigma_c,
+                                             "center_mean_m": float(np.nanmean(stats.mean_m[cy, cx])),
+                                             "position_m": measured_m}))
+
+    def _ambient(self, requested: CameraSettings, n: int) -> np.ndarray | None:
+        """Mean IR image with the projector off: the ambient light level at this stop."""
+        dark = CameraSettings(projector_on=False, exposure_us=requested.exposure_us, gain=requested.gain,
+                              auto_exposure=requested.auto_exposure)
+        self._configure(dark)
+        acc = MeanImageAccumulator()
+        for frame in self._frames_checked(n, dark, ir=True):
+            if frame.ir is not None:
+                acc.add(frame.ir)
+        self._configure(requested)
+        return acc.result()
+
+
+class _Aborted(Exception):
+    pass
