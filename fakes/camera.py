@@ -145,9 +145,9 @@ class FakeCamera(DepthCamera):
         return self._settings
 
     # -- truth, for tests and demos ----------------------------------------------------------
-    def base_truth(self, projector_on: bool | None = None) -> tuple[float, float]:
-        """(k, lambda) of the base physics without effects, at the current exposure."""
-        s = self._settings
+    def base_truth(self, settings: CameraSettings | None = None) -> tuple[float, float]:
+        """(k, lambda) of the base physics without effects, for `settings` (default: the current ones)."""
+        s = settings or self._settings
         return base_truth(
             self.physics,
             fx=self.intrinsics.fx,
@@ -155,7 +155,7 @@ class FakeCamera(DepthCamera):
             width=self.intrinsics.width,
             height=self.intrinsics.height,
             exposure_us=s.exposure_us,
-            projector_on=s.projector_on if projector_on is None else projector_on,
+            projector_on=s.projector_on,
         )
 
     def current_field(self) -> StopField:

@@ -12,6 +12,7 @@ follows the stage's measured position after each move.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 from urllib.parse import parse_qsl, urlsplit
@@ -154,8 +155,27 @@ class FollowingStage(Stage):
         return self.inner.describe()
 
 
-def open_devices(camera: str, stage: str, *, tilt_deg: float = 0.0, distance_m: float = 1.0) -> tuple[DepthCamera, Stage]:
-    """Build (camera, stage) from device strings. Devices are returned unopened."""
+@dataclass
+class RigDevices:
+    """A camera and a stage built from device strings, unopened, and how to wait between steps.
+
+    With simulated devices only, waiting advances the simulated clock instead of sleeping.
+    """
+
+    camera: DepthCamera
+    stage: Stage
+    world: Any = None
+    simulated: bool = False
+
+    def sleep(self, seconds: float) -> None:
+        if self.simulated:
+            self.world.time_s += seconds
+        else:
+            time.sleep(seconds)
+
+
+def open_devices(camera: str, stage: str, *, tilt_deg: float = 0.0, distance_m: float = 1.0) -> RigDevices:
+    """Build the camera and stage from device strings. Devices are returned unopened."""
     from fakes.world import FakeWorld, Wall
 
     _load_plugins()
@@ -167,6 +187,9 @@ def open_devices(camera: str, stage: str, *, tilt_deg: float = 0.0, distance_m: 
             raise DeviceError(f"unknown {what} kind {spec.kind!r} in {spec.text!r}; known kinds: {known}")
     cam = _CAMERAS[cam_spec.kind](cam_spec, world)
     stg = _STAGES[stage_spec.kind](stage_spec, world)
-    if cam_spec.kind == "fake" and stage_spec.kind not in ("fake", "none"):
+    if stage_spec.kind == "none":
+        stg = NoStage(position_m=distance_m)
+    if cam_spec.kind == "fake" and stage_spec.kind != "fake":
         stg = FollowingStage(stg, world)
-    return cam, stg
+    simulated = cam_spec.kind == "fake" and stage_spec.kind in ("fake", "none")
+    return RigDevices(cam, stg, world, simulated)

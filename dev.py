@@ -1,0 +1,53 @@
+#!/usr/bin/env python3
+"""Set up and run rig from a fresh clone: `python3 dev.py demo` or `python3 dev.py test`.
+
+Creates .venv/ beside this file (once), installs rig into it (again whenever pyproject.toml
+changes), then runs the demo or the test suite. Needs only Python 3.11+.
+Extra arguments are passed on: `python3 dev.py demo --full-resolution`, `python3 dev.py test -k fit`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = ROOT / ".venv"
+BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
+STAMP = VENV / ".rig-installed"
+
+
+def setup() -> None:
+    if sys.version_info < (3, 11):
+        sys.exit(f"rig needs Python 3.11 or newer; this is {sys.version.split()[0]}. Install a newer Python and re-run.")
+    if not (BIN / "python").exists():
+        print(f"dev.py: creating {VENV}", flush=True)
+        venv.EnvBuilder(with_pip=True).create(VENV)
+    want = hashlib.sha256((ROOT / "pyproject.toml").read_bytes()).hexdigest()
+    if not STAMP.exists() or STAMP.read_text() != want:
+        print("dev.py: installing rig and its dependencies into .venv (first run takes a minute)", flush=True)
+        subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--upgrade", "pip"], check=True)
+        subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test]"], check=True)
+        STAMP.write_text(want)
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in ("demo", "test", "setup"):
+        print(__doc__.strip())
+        return 2
+    setup()
+    cmd, rest = argv[0], argv[1:]
+    if cmd == "setup":
+        print(f"dev.py: ready; run {BIN / 'rig'} --help")
+        return 0
+    if cmd == "demo":
+        return subprocess.call([str(BIN / "rig"), "demo", *rest])
+    return subprocess.call([str(BIN / "python"), "-m", "pytest", *rest], cwd=ROOT)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

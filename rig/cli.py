@@ -1,0 +1,162 @@
+"""The `rig` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from drivers.errors import DeviceError
+
+from .recording import RecordingError
+
+
+class UsageError(ValueError):
+    """Bad command-line input; the message says what to type instead."""
+
+
+def _add_run_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("experiment", nargs="?", help="experiment file (TOML); or give --protocol and options")
+    p.add_argument("--protocol", choices=["perpendicular", "tilted"], help="protocol when no file is given")
+    p.add_argument("--camera", help="camera device string (default fake:)")
+    p.add_argument("--stage", help="stage device string (default fake: for perpendicular, none: for tilted)")
+    p.add_argument("-o", "--output", help="recording to write (.h5)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted recording")
+    p.add_argument("--frames", type=int, help="frames per stop")
+    p.add_argument("--projector", choices=["on", "off"], help="IR projector")
+    p.add_argument("--exposure-us", type=float)
+    p.add_argument("--gain", type=float)
+    p.add_argument("--stops", help="comma-separated distances in m (perpendicular)")
+    p.add_argument("--tilt-deg", type=float, help="wall tilt (tilted)")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from protocols.experiment_file import Experiment, build_plan, load_experiment
+    from protocols.runner import Runner
+
+    from .devices import open_devices
+    from .progress import TerminalProgress
+
+    overrides: dict = {}
+    if args.frames is not None:
+        overrides["frames_per_stop" if (args.protocol or "perpendicular") == "perpendicular" else "frames"] = args.frames
+    if args.projector:
+        overrides["projector_on"] = args.projector == "on"
+    if args.exposure_us is not None:
+        overrides["exposure_us"] = args.exposure_us
+    if args.gain is not None:
+        overrides["gain"] = args.gain
+    if args.stops:
+        try:
+            overrides["stops_m"] = [float(x) for x in args.stops.split(",")]
+        except ValueError:
+            raise UsageError(f"--stops {args.stops!r}: write distances in m separated by commas, e.g. 0.5,1.0,1.5") from None
+    if args.tilt_deg is not None:
+        overrides["tilt_deg"] = args.tilt_deg
+    if args.experiment:
+        exp = load_experiment(args.experiment)
+        if overrides:
+            params = {**exp.plan.params, **overrides}
+            if exp.plan.name == "tilted" and "frames_per_stop" in params:
+                params["frames"] = params.pop("frames_per_stop")
+            exp.plan = build_plan(exp.plan.name, params)
+    else:
+        if not args.protocol:
+            raise UsageError("give an experiment file (rig run FILE.toml) or --protocol perpendicular|tilted")
+        exp = Experiment(build_plan(args.protocol, overrides), "fake:", "fake:" if args.protocol == "perpendicular" else "none:", None)
+    camera = args.camera or exp.camera
+    stage = args.stage or exp.stage
+    output = Path(args.output) if args.output else exp.output
+    if output is None:
+        raise UsageError("no output file; pass -o FILE.h5 (or set output in the experiment file)")
+    p = exp.plan.params
+    devices = open_devices(camera, stage, tilt_deg=p.get("tilt_deg", 0.0), distance_m=p.get("distance_m", 1.0))
+    print(f"rig: {exp.plan.name} experiment, camera {camera}, stage {stage} -> {output}", file=sys.stderr)
+    result = Runner(devices.camera, devices.stage, progress=TerminalProgress(), sleep=devices.sleep).run(
+        exp.plan, output, resume=args.resume)
+    print(f"recorded {len(result.recorded)} stops ({len(result.skipped)} already there) in {result.path}")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from .analysis import fit_recording
+
+    r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
+    if args.json:
+        print(json.dumps(r.fit.to_dict(), indent=2))
+    else:
+        mode = "projector on" if r.projector_on else "projector off"
+        print(f"{r.path}: {r.protocol}, {mode}")
+        print(r.fit.report())
+    if args.plot:
+        from .plots import SigmaSeries, plot_sigma_vs_range
+
+        out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
+        print(f"plot: {out}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    return run_demo(out_dir=Path(args.out), frames=args.frames, width=848 if args.full_resolution else args.width,
+                    seed=args.seed, depth_unit_mm=args.depth_unit_mm)
+
+
+def cmd_stage_sim(args: argparse.Namespace) -> int:
+    try:
+        from fakes.stage_sim_cli import stage_sim_main
+    except ModuleNotFoundError:
+        raise UsageError("the stage simulators are not installed in this version") from None
+    return stage_sim_main(args.rest)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rig", description="Depth-camera range-error rig: acquire, fit, diagnose.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("demo", help="simulated perpendicular experiments (projector on and off), fitted and plotted")
+    p.add_argument("--out", default="rig-output", help="output folder (default rig-output/)")
+    p.add_argument("--frames", type=int, default=300, help="frames per stop (default 300)")
+    p.add_argument("--width", type=int, default=424, help="simulated image width in px (default 424, half of 848)")
+    p.add_argument("--full-resolution", action="store_true", help="simulate the full 848x480 image (slower)")
+    p.add_argument("--depth-unit-mm", type=float, default=0.1, help="depth unit of the simulated camera (default 0.1 mm)")
+    p.add_argument("--seed", type=int, default=1)
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("run", help="run an experiment (TOML file or options) and record it")
+    _add_run_args(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("fit", help="fit sigma_Z = k Z^lambda to a recording")
+    p.add_argument("recording")
+    p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
+    p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
+    p.add_argument("--plot", help="write a sigma-vs-range PNG here")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("stage-sim", help="run a simulated stage controller on a pseudo-terminal (grbl or zaber)")
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=cmd_stage_sim)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from protocols.experiment_file import ExperimentFileError
+    from protocols.runner import RunError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError) as e:
+        print(f"rig: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rig: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
