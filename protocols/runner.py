@@ -124,19 +124,23 @@ class Runner:
             writer = RecordingWriter(path, resume=resume)
         except (RecordingError, OSError) as e:
             raise RunError(str(e)) from None
+        created = not resume
         recorded: list[str] = []
         skipped: list[str] = []
         try:
             with writer, self.camera, self.stage:
                 info = self.camera.info()
                 i = info.intrinsics
-                writer.start_experiment(
-                    protocol=plan.name,
-                    params=plan.params,
-                    camera=self.camera.describe(),
-                    stage=self.stage.describe(),
-                    calibration=CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, info.baseline_m, info.depth_scale_m),
-                )
+                try:
+                    writer.start_experiment(
+                        protocol=plan.name,
+                        params=plan.params,
+                        camera=self.camera.describe(),
+                        stage=self.stage.describe(),
+                        calibration=CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, info.baseline_m, info.depth_scale_m),
+                    )
+                except RecordingError as e:
+                    raise RunError(str(e)) from None
                 done = writer.completed_stops()
                 pending_move: float | None = None
                 pending_settle = 0.0
@@ -185,16 +189,20 @@ class Runner:
             self.progress(ProgressEvent("done", text="aborted"))
             return RunResult(path, recorded, skipped, aborted=True)
         except KeyboardInterrupt:
-            raise RunError(self._saved_message(path, recorded, skipped, len(labels), "interrupted")) from None
-        except DeviceError as e:
-            raise RunError(f"{e}\n" + self._saved_message(path, recorded, skipped, len(labels), "stopped")) from None
+            raise RunError("run interrupted; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
+        except (DeviceError, RecordingError) as e:
+            raise RunError(f"{e}; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
         self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
         return RunResult(path, recorded, skipped)
 
     @staticmethod
-    def _saved_message(path: Path, recorded: list[str], skipped: list[str], n: int, how: str) -> str:
+    def _saved_message(path: Path, recorded: list[str], skipped: list[str], n: int, created: bool) -> str:
+        """Say what is kept. A new file with no completed stop is removed, so a re-run starts clean."""
         saved = len(recorded) + len(skipped)
-        return f"run {how}: {saved} of {n} stops are saved in {path}; re-run the same command with --resume to record the rest"
+        if saved == 0 and created:
+            path.unlink(missing_ok=True)
+            return "nothing was recorded"
+        return f"{saved} of {n} stops are saved in {path}; re-run the same command with --resume to record the rest"
 
     def _configure(self, requested: CameraSettings) -> CameraSettings:
         got = self.camera.configure(requested)

@@ -1,0 +1,81 @@
+"""The maximum-likelihood fit of sigma_Z = k Z^lambda on exact model data.
+
+Data are drawn from the fit's own model, z ~ N(Z, (k Z^lambda)^2), so any bias or
+miscalibrated standard error is the estimator's.
+"""
+
+import numpy as np
+import pytest
+
+from rig.fit import fit_power_law, pooled_sigma
+from rig.samples import PixelSamples
+
+STOPS = np.arange(0.5, 3.001, 0.25)
+
+
+def model_samples(k, lam, seed, pixels_per_stop=150, frames=40):
+    rng = np.random.default_rng(seed)
+    z = np.repeat(STOPS, pixels_per_stop)
+    x = rng.normal(z[:, None], (k * z**lam)[:, None], (z.size, frames))
+    mean = x.mean(axis=1)
+    d = x - mean[:, None]
+    n = np.full(z.size, float(frames))
+    nan = np.full(z.size, np.nan)
+    return PixelSamples(z_m=mean, m2_m2=(d**2).sum(1), m4_m4=(d**4).sum(1), n=n,
+                        stop=np.repeat(np.arange(STOPS.size), pixels_per_stop), u_px=nan, v_px=nan, ir=nan,
+                        fill=np.ones(z.size))
+
+
+@pytest.mark.parametrize("k,lam", [(0.002, 3.0), (0.005, 2.0)])
+def test_recovers_parameters_and_standard_errors_match_spread(k, lam):
+    fits = [fit_power_law(model_samples(k, lam, seed)) for seed in range(40)]
+    lams = np.array([f.lam for f in fits])
+    ks = np.array([f.k for f in fits])
+    for f in fits[:8]:  # several seeds, each within 3 standard errors
+        assert abs(f.lam - lam) < 3 * f.se_lam
+        assert abs(f.k - k) < 3 * f.se_k
+    # no bias: the mean over 40 seeds is within 3 standard errors of the mean
+    assert abs(lams.mean() - lam) < 3 * np.mean([f.se_lam for f in fits]) / np.sqrt(len(fits))
+    assert abs(ks.mean() - k) < 3 * np.mean([f.se_k for f in fits]) / np.sqrt(len(fits))
+    # the Cramer-Rao standard errors describe the scatter across seeds (40 seeds: the
+    # spread itself is known to about 11 %, so 30 % is a ~3 sigma band)
+    se_lam = np.mean([f.se_lam for f in fits])
+    se_k = np.mean([f.se_k for f in fits])
+    assert abs(lams.std(ddof=1) / se_lam - 1) < 0.3
+    assert abs(ks.std(ddof=1) / se_k - 1) < 0.3
+
+
+def test_loglik_is_the_gaussian_likelihood_with_pixel_degrees_of_freedom():
+    s = model_samples(0.002, 3.0, seed=5)
+    f = fit_power_law(s)
+    sig2 = (f.k * s.z_m**f.lam) ** 2
+    brute = np.sum(-0.5 * (s.n - 1) * np.log(2 * np.pi * sig2) - s.m2_m2 / (2 * sig2))
+    assert f.loglik == pytest.approx(brute, rel=1e-10)
+    # and it is the maximum: moving lambda by a little lowers it
+    for dl in (-0.01, 0.01):
+        lam = f.lam + dl
+        k2 = np.sum(s.m2_m2 / s.z_m ** (2 * lam)) / np.sum(s.n - 1)
+        sig2 = k2 * s.z_m ** (2 * lam)
+        assert np.sum(-0.5 * (s.n - 1) * np.log(2 * np.pi * sig2) - s.m2_m2 / (2 * sig2)) < f.loglik
+
+
+def test_fixed_lambda_fits_k_only():
+    s = model_samples(0.002, 3.0, seed=2)
+    f = fit_power_law(s, lam=3.0)
+    assert f.lam_fixed and f.lam == 3.0
+    assert abs(f.k - 0.002) < 3 * f.se_k
+
+
+def test_single_range_cannot_estimate_lambda():
+    s = model_samples(0.002, 3.0, seed=1)
+    one = s.select(s.stop == 0)
+    one.z_m[:] = 0.5
+    with pytest.raises(ValueError, match="same range"):
+        fit_power_law(one)
+
+
+def test_pooled_sigma_per_stop():
+    s = model_samples(0.002, 3.0, seed=4)
+    b = pooled_sigma(s, s.stop)
+    expected = 0.002 * b.z_m**3
+    assert np.all(np.abs(b.sigma_m - expected) < 4 * b.se_sigma_m)

@@ -1,0 +1,170 @@
+"""The runner end to end on the simulated rig: what it records, errors, resume, abort."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from drivers.camera import CameraSettings, FrameMetadata
+from fakes.camera import FakeCamera
+from fakes.stage import FakeStage
+from fakes.world import FakeWorld
+from protocols import Runner, RunError, perpendicular, tilted
+from protocols.runner import ProgressEvent, RunControl
+from rig.devices import open_devices
+from rig.recording import Recording
+from rig.stats import PixelMomentAccumulator
+from simrig import record_perpendicular
+
+STOPS = [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]
+
+
+def test_perpendicular_records_every_stop_with_positions_settings_and_series(tmp_path):
+    path, _, devices = record_perpendicular(tmp_path / "a.h5", frames=12, width=24, ambient_frames=3)
+    with Recording(path) as rec:
+        assert rec.protocol == "perpendicular"
+        assert rec.protocol_params["stops_m"] == STOPS
+        assert rec.calibration.depth_scale_m == pytest.approx(5e-5)
+        assert rec.calibration.fx == pytest.approx(425 * 24 / 848)
+        assert rec.attrs["camera_model"].startswith("Fake D435")
+        assert "ended_utc" in rec.attrs
+        stops = list(rec.stops())
+    assert [s.label for s in stops] == [f"{z:.3f}m" for z in STOPS]
+    for s, z in zip(stops, STOPS):
+        assert s.commanded_position_m == z
+        assert abs(s.measured_position_m - z) < 0.002
+        assert s.settings_read_back == {"projector_on": True, "exposure_us": 8500.0, "gain": 16.0, "auto_exposure": False}
+        assert s.n_frames == 12 and s.stats.count.max() == 12
+        assert np.nanmedian(s.stats.mean_m) == pytest.approx(z, rel=0.01)
+        assert len(s.series.frame_number) == 12
+        assert np.all(np.diff(s.series.frame_number) == 1)
+        assert np.all(np.diff(s.series.timestamp_ms) > 0)
+        assert np.nanmean(s.series.center_mean_m) == pytest.approx(z, rel=0.01)
+        assert s.ir_mean is not None and s.ir_mean.shape == s.stats.count.shape
+        assert s.ambient_ir_mean is not None
+    # with the projector off the IR image shows room light, the same at every distance;
+    # the projected pattern falls as 1/Z^2 (1 m -> 2 m: a quarter)
+    ambient = np.array([s.ambient_ir_mean.mean() for s in stops])
+    assert np.ptp(ambient) < 0.1 * ambient.mean()
+    ir = {s.commanded_position_m: s.ir_mean.mean() for s in stops}
+    assert ir[1.0] / ir[2.0] == pytest.approx(4.0, rel=0.05)
+
+
+def test_stored_statistics_equal_numpy_on_the_raw_frames(tmp_path):
+    path, _, _ = record_perpendicular(tmp_path / "raw.h5", frames=25, width=40, keep_raw=True,
+                                      effects="outliers(fraction=0.02)", stops_m=[0.5, 2.0, 3.0])
+    with h5py.File(path) as f:
+        scale = f["camera"].attrs["depth_scale_m"]
+        for label in f["stops"]:
+            g = f["stops"][label]
+            raw = g["raw_depth"][()]
+            z = np.where(raw > 0, raw * scale, np.nan)
+            mean = np.nanmean(z, axis=0)
+            np.testing.assert_array_equal(g["count"][()], np.sum(raw > 0, axis=0))
+            np.testing.assert_allclose(g["mean_m"][()], mean, rtol=1e-12)
+            np.testing.assert_allclose(g["m2_m2"][()], np.nansum((z - mean) ** 2, axis=0), rtol=1e-9)
+            np.testing.assert_allclose(g["m4_m4"][()], np.nansum((z - mean) ** 4, axis=0), rtol=1e-7)
+
+
+def test_interrupted_run_keeps_completed_stops_and_resumes(tmp_path):
+    path = tmp_path / "r.h5"
+    plan = perpendicular(frames_per_stop=10)
+    cam = "fake:width=16,height=9,seed=3"
+    # the camera "unplugs" during the 5th stop (frames 40..49)
+    devices = open_devices(cam + ",fail_at_frame=45", "fake:")
+    with pytest.raises(RunError) as err:
+        Runner(devices.camera, devices.stage, sleep=devices.sleep).run(plan, path)
+    msg = str(err.value)
+    assert "disconnected at frame 45" in msg and "4 of 11 stops are saved" in msg and "--resume" in msg
+    assert "\n" not in msg
+    with Recording(path) as rec:
+        assert rec.stop_labels() == ["0.500m", "0.750m", "1.000m", "1.250m"]
+        assert "ended_utc" not in rec.attrs
+    with h5py.File(path) as f:  # the half-done stop is marked incomplete
+        assert not f["stops"]["1.500m"].attrs["complete"]
+
+    with pytest.raises(RunError, match="already exists.*--resume"):
+        Runner(devices.camera, devices.stage).run(plan, path)
+
+    devices = open_devices(cam, "fake:")
+    moves = []
+    orig = devices.stage.move_to
+    devices.stage.move_to = lambda z: moves.append(z) or orig(z)
+    result = Runner(devices.camera, devices.stage, sleep=devices.sleep).run(plan, path, resume=True)
+    assert result.skipped == ["0.500m", "0.750m", "1.000m", "1.250m"]
+    assert result.recorded == [f"{z:.3f}m" for z in STOPS[4:]]
+    assert moves == STOPS[4:]  # completed stops are not driven to again
+    with Recording(path) as rec:
+        assert rec.stop_labels() == [f"{z:.3f}m" for z in STOPS]
+        assert "ended_utc" in rec.attrs
+
+
+def test_resume_refuses_a_different_experiment(tmp_path):
+    path, _, _ = record_perpendicular(tmp_path / "a.h5", frames=3, width=8, stops_m=[1.0])
+    devices = open_devices("fake:width=8", "fake:")
+    with pytest.raises(RunError, match=r"holds a different experiment \(perpendicular\); resume it with the plan that made it, or write a new file$"):
+        Runner(devices.camera, devices.stage).run(tilted(frames=3), path, resume=True)
+
+
+def test_abort_from_another_thread_keeps_completed_stops(tmp_path):
+    control = RunControl()
+
+    def progress(e: ProgressEvent):
+        if e.kind == "stop_done" and e.stop_index == 1:
+            control.abort.set()
+
+    devices = open_devices("fake:width=8", "fake:")
+    result = Runner(devices.camera, devices.stage, progress=progress, sleep=devices.sleep, control=control).run(
+        perpendicular(frames_per_stop=5), tmp_path / "x.h5")
+    assert result.aborted and result.recorded == ["0.500m", "0.750m"]
+    with Recording(tmp_path / "x.h5") as rec:
+        assert rec.stop_labels() == ["0.500m", "0.750m"]
+
+
+class MisreportingCamera(FakeCamera):
+    """A fake camera whose frames report auto-exposure on: the run must refuse it."""
+
+    def frames(self, n, *, ir=False):
+        for f in super().frames(n, ir=ir):
+            f.metadata = FrameMetadata(exposure_us=3300.0, gain=f.metadata.gain, projector_on=True, auto_exposure=True)
+            yield f
+
+
+def test_frames_whose_metadata_disagree_stop_the_run_before_recording(tmp_path):
+    world = FakeWorld.perpendicular()
+    cam = MisreportingCamera(world, width=8, height=5)
+    with pytest.raises(RunError) as err:
+        Runner(cam, FakeStage(world)).run(perpendicular(frames_per_stop=5), tmp_path / "m.h5")
+    msg = str(err.value)
+    assert "auto-exposure on (asked off)" in msg and "exposure 3300 us (asked 8500 us)" in msg
+    assert "nothing was recorded" in msg and "\n" not in msg
+
+
+def test_settings_out_of_range_give_one_line_error(tmp_path):
+    devices = open_devices("fake:width=8", "fake:")
+    with pytest.raises(RunError, match=r"^fake-camera: exposure 500000 us is outside 1-165000 us; choose one inside.*nothing was recorded[^\n]*$"):
+        Runner(devices.camera, devices.stage).run(perpendicular(exposure_us=500000), tmp_path / "e.h5")
+    assert not (tmp_path / "e.h5").exists()  # nothing half-written to trip over on the next run
+
+
+def test_stage_limits_refuse_before_moving(tmp_path):
+    devices = open_devices("fake:width=8", "fake:")
+    with pytest.raises(RunError, match=r"5.000 m is outside the travel limits 0.300-3.500 m"):
+        Runner(devices.camera, devices.stage, sleep=devices.sleep).run(
+            perpendicular(stops_m=[1.0, 5.0], frames_per_stop=3), tmp_path / "l.h5")
+    with Recording(tmp_path / "l.h5") as rec:
+        assert rec.stop_labels() == ["1.000m"]
+
+
+def test_tilted_wall_spans_half_to_two_metres(tmp_path):
+    plan = tilted(frames=20)
+    devices = open_devices("fake:width=106", "none:", tilt_deg=plan.params["tilt_deg"], distance_m=plan.params["distance_m"])
+    Runner(devices.camera, devices.stage, sleep=devices.sleep).run(plan, tmp_path / "t.h5")
+    with Recording(tmp_path / "t.h5") as rec:
+        (stop,) = list(rec.stops())
+    z = stop.stats.mean_m
+    assert np.nanmin(z) == pytest.approx(0.5, abs=0.03)
+    assert np.nanmax(z) == pytest.approx(2.0, abs=0.1)
+    assert np.all(np.diff(np.nanmean(z, axis=0)) < 0)  # positive tilt: the right side is nearer
+    assert stop.n_frames == 20
