@@ -401,9 +401,10 @@ class GrblStage(Stage):
         self.check_limits(position_m)
         x_mm = self.rail.to_rail_mm(position_m)
         command = f"G53 G1 X{x_mm:.3f} F{self.feed_mm_min:.0f}"
-        distance_mm = abs(x_mm - self._last_x_mm) if self._last_x_mm is not None else self.rail.max_mm - self.rail.min_mm
+        last = self._last_x_mm
+        distance_mm = abs(x_mm - last) if last is not None else self.rail.max_mm - self.rail.min_mm
         self._command(command, self.timeout_s)
-        self._wait_idle(command, 2.0 * distance_mm / (self.feed_mm_min / 60.0) + 10.0)
+        self._wait_idle(repr(command), 2.0 * distance_mm / (self.feed_mm_min / 60.0) + 10.0)
         if self.settle_s > 0:
             time.sleep(self.settle_s)
         measured = self.position_m()
@@ -535,7 +536,9 @@ class GrblStage(Stage):
                 moved, idle_reports = True, 0
             elif status.state == "Alarm":
                 self._homed = False
-                raise self.link.error(f"controller in Alarm during {what}", f"check the rail and limit switches, {RESUME}")
+                raise self.link.error(
+                    f"controller in Alarm during {what}", f"check the rail and limit switches, {RESUME}"
+                )
             elif status.state == "Door":
                 raise self.link.error(f"safety door open during {what}", f"close it, {RESUME}")
             elif status.state in ("Check", "Sleep"):
@@ -546,7 +549,8 @@ class GrblStage(Stage):
             if time.monotonic() > deadline:
                 raise self.link.error(
                     f"still moving {timeout_s:.1f} s after {what} (state {status.state}, X {status.x_mm:.3f} mm)",
-                    f"check the rail for obstruction, a feed hold and the feed rate (feed={self.feed_mm_min:.0f}), {RESUME}",
+                    "check the rail for obstruction, a feed hold and the feed rate "
+                    f"(feed={self.feed_mm_min:.0f}), {RESUME}",
                 )
             time.sleep(self.poll_s)
 
@@ -674,8 +678,10 @@ class ZaberStage(Stage):
         self.link.close()
 
     def home(self) -> None:
-        """Clear old warnings, home, wait until idle, and check the reference is set."""
+        """Stop any motion left over, clear old warnings, home, and check the reference is set."""
         self.link.discard_input()
+        self._request("stop")
+        self._wait_idle("stop", self.move_timeout_s, homing=True, check_flags=False)
         self._request("warnings clear")
         self._request("home")
         reply = self._wait_idle("home", self.home_timeout_s, homing=True)
@@ -745,7 +751,9 @@ class ZaberStage(Stage):
     def _rejection(self, reply: ZaberReply, what: str) -> StageError:
         if reply.flag in ("WR", "WH"):
             self._homed = False
-            return self.link.error(f"{what} rejected: no reference position ({reply.flag})", "home the stage, " + RESUME)
+            return self.link.error(
+                f"{what} rejected: no reference position ({reply.flag})", "home the stage, " + RESUME
+            )
         meaning = ZABER_REJECTIONS.get(reply.data, "unknown reason")
         fix = ("check microstep_um and offset_m against the stage's travel (limit.max)"
                if reply.data == "BADDATA" else "check the device and axis numbers and the firmware")
@@ -757,12 +765,13 @@ class ZaberStage(Stage):
         except ValueError:
             raise self.link.garbled(reply.data, repr(command)) from None
 
-    def _wait_idle(self, what: str, timeout_s: float, *, homing: bool) -> ZaberReply:
+    def _wait_idle(self, what: str, timeout_s: float, *, homing: bool, check_flags: bool = True) -> ZaberReply:
         """Poll 'get pos' until the axis is IDLE; raise on fault or interruption flags."""
         deadline = time.monotonic() + timeout_s
         while True:
             reply = self._request("get pos")
-            self._check_flag(reply.flag, what, homing=homing)
+            if check_flags:
+                self._check_flag(reply.flag, what, homing=homing)
             if not reply.busy:
                 return reply
             if time.monotonic() > deadline:

@@ -11,12 +11,14 @@ controller starts in Alarm until `$H` or `$X`; a target outside the travel gives
 (soft limits on) or runs into the end switch and gives ALARM:1 (soft limits off); both are
 critical: nothing but `?` and Ctrl-X is answered until a reset, after which `$X` or `$H`
 is needed. Faults for tests, via `inject()`: drop_reply, noise, unplug, position_error
-(mm=...), hard_limit (the next move trips a limit switch half-way) and homing_fail.
+(mm=...), hard_limit (the next move trips a limit switch half-way) and homing_fail;
+`power_cycle()` restarts the controller.
 """
 
 from __future__ import annotations
 
 import re
+import time
 
 from .pty_controller import COMMON_FAULTS, Carriage, PtyController
 
@@ -239,6 +241,24 @@ class GrblSim(PtyController):
         )
 
     # --- state changes ---------------------------------------------------------------------------
+
+    def power_cycle(self) -> None:
+        """Lose power and come back: motion stops, MPos restarts at zero where the carriage is,
+        the banner is sent unasked, and (with homing enabled) the controller is in Alarm."""
+        with self._lock:
+            now = time.monotonic()
+            self.carriage.stop(now)
+            self.origin_mm = self.carriage.position_mm(now)
+            self.homed = False
+            self.critical = False
+            self.state = "Alarm" if self.homing else "Idle"
+            self._queue.clear()
+            self._dwell_until = None
+            self._line.clear()
+            self.write(b"\r\n")
+            self.send_line(BANNER)
+            if self.state == "Alarm":
+                self.send_line("[MSG:'$H'|'$X' to unlock]")
 
     def _critical_alarm(self, code: int, now_s: float) -> None:
         self.carriage.stop(now_s)

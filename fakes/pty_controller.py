@@ -114,26 +114,30 @@ class PtyController:
     # --- lifetime -------------------------------------------------------------------------
 
     def start(self) -> "PtyController":
+        """Open the pty and serve it; does nothing if already serving."""
+        if self.running:
+            return self
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
+        os.set_blocking(self._master, False)  # a full buffer loses bytes, as a real UART would
         self.port = os.ttyname(self._slave)
         self._wake_r, self._wake_w = os.pipe()
         self._stopping.clear()
-        self._thread = threading.Thread(target=self._serve, name=f"{self.kind}-sim {self.port}", daemon=True)
+        self._thread = threading.Thread(
+            target=self._serve, args=(self._master, self._slave, self._wake_r, self._wake_w),
+            name=f"{self.kind}-sim {self.port}", daemon=True,
+        )
         self._thread.start()
         return self
 
     def stop(self) -> None:
-        """Stop serving and close the pty; the port disappears."""
+        """Stop serving and close the pty; the port disappears. start() again serves a new pty."""
         self._stopping.set()
-        if self._wake_w >= 0:
-            try:
+        with self._lock:
+            if self._wake_w >= 0:
                 os.write(self._wake_w, b"x")
-            except OSError:
-                pass
         if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=2.0)
-        self._thread = None
+            self._thread.join(timeout=5.0)
 
     def __enter__(self) -> "PtyController":
         return self.start()
@@ -195,10 +199,13 @@ class PtyController:
         self.write(data + b"\r\n")
 
     def write(self, data: bytes) -> None:
-        try:
-            os.write(self._master, data)
-        except OSError:
-            pass
+        with self._lock:
+            if self._master < 0:
+                return
+            try:
+                os.write(self._master, data)
+            except OSError:
+                pass
 
     def rested(self, position_mm: float) -> None:
         for callback in self._position_callbacks:
@@ -221,14 +228,14 @@ class PtyController:
         noisy[0] |= 0x80
         return bytes(b if b not in (0x0A, 0x0D) else 0xBF for b in noisy)
 
-    def _serve(self) -> None:
+    def _serve(self, master: int, slave: int, wake_r: int, wake_w: int) -> None:
         try:
             while not self._stopping.is_set():
-                ready, _, _ = select.select([self._master, self._wake_r], [], [], self.tick_s)
+                ready, _, _ = select.select([master, wake_r], [], [], self.tick_s)
                 now = time.monotonic()
-                if self._master in ready:
+                if master in ready:
                     try:
-                        data = os.read(self._master, 4096)
+                        data = os.read(master, 4096)
                     except OSError:
                         data = b""
                     if data:
@@ -237,10 +244,7 @@ class PtyController:
                 with self._lock:
                     self.tick(now)
         finally:
-            for fd in (self._master, self._slave, self._wake_r, self._wake_w):
-                if fd >= 0:
-                    try:
-                        os.close(fd)
-                    except OSError:
-                        pass
-            self._master = self._slave = self._wake_r = self._wake_w = -1
+            with self._lock:
+                self._master = self._slave = self._wake_r = self._wake_w = -1
+                for fd in (master, slave, wake_r, wake_w):
+                    os.close(fd)

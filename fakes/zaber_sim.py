@@ -9,10 +9,13 @@ get maxspeed, warnings, warnings clear. Positions are in microsteps of `microste
 
 Until homed the axis carries the WR flag (no reference position) and absolute moves are
 rejected. Faults for tests, via `inject()`: drop_reply, noise, unplug, position_error
-(mm=...), and stall (the next move stops half-way with the FS fault flag).
+(mm=...), and stall (the next move stops half-way with the FS fault flag); `power_cycle()`
+restarts the device, which then has no reference position.
 """
 
 from __future__ import annotations
+
+import time
 
 from .pty_controller import COMMON_FAULTS, Carriage, PtyController
 
@@ -148,6 +151,16 @@ class ZaberSim(PtyController):
             stop_at_mm=(start + carriage_mm) / 2 if stall else None, stop_outcome="stall",
             error_mm=float(error.get("mm", 5.0)) if error else 0.0,
         )
+
+    def power_cycle(self) -> None:
+        """Lose power and come back: motion stops and the reference position is lost (WR)."""
+        with self._lock:
+            now = time.monotonic()
+            self.carriage.stop(now)
+            self.origin_mm = self.carriage.position_mm(now)
+            self.homed = self.homing = False
+            self.flags = {"WR"}
+            self._buffer.clear()
 
     # --- time ----------------------------------------------------------------------------------
 
