@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 
 from .grbl_sim import GrblSim
@@ -38,15 +39,32 @@ def _build(args: argparse.Namespace) -> tuple[PtyController, str]:
     return sim, "offset_m=0.3&microstep_um={microstep:g}"
 
 
+def _read_faults(sim: PtyController) -> None:
+    """Inject the faults typed on stdin, one name (and optional mm=N) a line, until EOF."""
+    for line in sys.stdin:
+        words = line.split()
+        if not words:
+            continue
+        params = dict(w.split("=", 1) for w in words[1:] if "=" in w)
+        try:
+            sim.inject(words[0], **{k: float(v) for k, v in params.items()})
+            print(f"injected {words[0]}", flush=True)
+        except ValueError as e:
+            print(e, flush=True)
+
+
 def stage_sim_main(argv: list[str]) -> int:
-    """Start the simulator, print its port and an example run line, serve until Ctrl-C."""
+    """Start the simulator, print its port and an example run line, serve until Ctrl-C.
+    Typing a fault name (e.g. `noise`, `unplug`, `position_error mm=3`) injects it."""
     args = _parser().parse_args(argv)
     sim, options = _build(args)
     with sim:
         device = f"{args.kind}://{sim.port}?" + options.format(travel=args.travel_mm, microstep=args.microstep_um)
         print(f"simulated {args.kind} controller on {sim.port}")
         print(f"try:  rig run --stage '{device}' ...")
-        print("(quote the device string: it contains ? and &)  Ctrl-C to stop", flush=True)
+        print("(quote the device string: it contains ? and &)  Ctrl-C to stop")
+        print(f"type a fault and Enter to inject it: {', '.join(sim.faults)}", flush=True)
+        threading.Thread(target=_read_faults, args=(sim,), daemon=True).start()
         shown_commands = shown_replies = 0
         try:
             while sim.running:
