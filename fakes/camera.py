@@ -21,8 +21,9 @@ from .world import FakeWorld
 
 EXPOSURE_RANGE_US = (1.0, 165000.0)
 GAIN_RANGE = (16.0, 248.0)
-#: digital numbers per photo-electron of the IR image at gain 16 (x1)
-IR_DN_PER_E = 0.05
+#: digital numbers per photo-electron of the IR image at gain 16 (x1); the image is 10-bit (Y16)
+IR_DN_PER_E = 0.08
+IR_MAX_DN = 1023
 
 
 class FakeCamera(DepthCamera):
@@ -30,6 +31,9 @@ class FakeCamera(DepthCamera):
 
     effects: extra physical effects (see `fakes.effects`), e.g. [NoiseFloor(0.03)].
     fail_at_frame: raise a CameraError when this frame number is reached (a simulated unplug).
+    light: "day" (room light on the wall), "night" (the projector is the only light), or "auto":
+        night if the camera is first configured with the projector on (the paper's night-time
+        active runs), day otherwise (its day-time passive runs).
     """
 
     name = "fake-camera"
@@ -48,6 +52,7 @@ class FakeCamera(DepthCamera):
         seed: int = 0,
         fail_at_frame: int | None = None,
         serial: str = "FAKE-0001",
+        light: str = "auto",
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -74,12 +79,17 @@ class FakeCamera(DepthCamera):
         self._opened_at_s = 0.0
         self._field_key: tuple | None = None
         self._field: StopField | None = None
-        self._dots = np.random.default_rng(seed + 7919).choice(np.array([0.2, 1.0], np.float32), size=(height, width))
+        relief_rng = np.random.default_rng(seed + 7919)
+        # the projected dots (bright/dark, averaging 1 so a smoothed IR image shows the mean signal)
+        self._dots = relief_rng.choice(np.array([1 / 3, 5 / 3], np.float32), size=(height, width))
+        self._relief = relief_rng.standard_normal((height, width))  # the wall's relief, times roughness_m
+        self.light = light
+        self._room_lit: bool | None = {"day": True, "night": False, "auto": None}[light]
 
     @classmethod
     def from_options(cls, world: FakeWorld, options: dict[str, str]) -> "FakeCamera":
         """Build from device-string options: width, height, depth_unit_mm, seed, fps, effects, fail_at_frame."""
-        known = {"width", "height", "depth_unit_mm", "seed", "fps", "effects", "fail_at_frame", "baseline_mm"}
+        known = {"width", "height", "depth_unit_mm", "seed", "fps", "effects", "fail_at_frame", "baseline_mm", "light"}
         unknown = set(options) - known
         if unknown:
             raise CameraError(f"fake camera: unknown option(s) {sorted(unknown)}; it takes {sorted(known)}")
@@ -96,7 +106,10 @@ class FakeCamera(DepthCamera):
                 fps=float(options.get("fps", 30.0)),
                 effects=parse_effects(options.get("effects", "")),
                 fail_at_frame=int(options["fail_at_frame"]) if "fail_at_frame" in options else None,
+                light=options.get("light", "auto"),
             )
+        except KeyError:
+            raise CameraError(f"fake camera: light={options.get('light')!r}; use light=day, night or auto") from None
         except ValueError as e:
             raise CameraError(f"fake camera: bad option ({e}); e.g. fake:width=424,depth_unit_mm=0.1") from None
 
@@ -119,6 +132,7 @@ class FakeCamera(DepthCamera):
             extra={
                 "physics": vars(self.physics),
                 "effects": [e.to_dict() for e in self.effects],
+                "light": self.light,
                 "seed": self.seed,
                 "fps": self.fps,
             },
@@ -139,6 +153,8 @@ class FakeCamera(DepthCamera):
         if not lo <= settings.gain <= hi:
             raise CameraError(f"{self.name}: gain {settings.gain} is outside {lo:.0f}-{hi:.0f}; choose one inside")
         self._settings = replace(settings, exposure_us=float(round(settings.exposure_us)), gain=float(round(settings.gain)))
+        if self._room_lit is None:
+            self._room_lit = not settings.projector_on
         return self.read_settings()
 
     def read_settings(self) -> CameraSettings:
@@ -161,7 +177,8 @@ class FakeCamera(DepthCamera):
     def current_field(self) -> StopField:
         """The per-pixel field for the wall's present position and the present settings."""
         s, wall = self._settings, self.world.wall
-        key = (wall.distance_m, wall.tilt_deg, s.projector_on, s.exposure_us, s.gain)
+        room_lit = bool(self._room_lit)
+        key = (wall.distance_m, wall.tilt_deg, wall.roughness_m, s.projector_on, s.exposure_us, s.gain, room_lit)
         if key != self._field_key:
             i = self.intrinsics
             self._field = build_field(
@@ -178,6 +195,8 @@ class FakeCamera(DepthCamera):
                 exposure_us=s.exposure_us,
                 gain=s.gain,
                 effects=self.effects,
+                room_lit=room_lit,
+                roughness_m=wall.roughness_m * self._relief,
             )
             self._field_key = key
         assert self._field is not None
@@ -225,11 +244,11 @@ class FakeCamera(DepthCamera):
             yield frame
 
     def _render_ir(self, f: StopField) -> np.ndarray:
-        """Left IR image in DN (uint8): pattern dots (projector on) or texture, plus ambient, with shot noise."""
+        """Left IR image in DN (10-bit in uint16): dots (projector on) or texture, plus ambient light, with shot noise."""
         e = (f.signal_e * self._dots + f.ambient_e) / f.binning
         noisy = e + np.sqrt(e) * self._rng.standard_normal(e.shape, dtype=np.float32)
         dn = noisy * IR_DN_PER_E * (self._settings.gain / 16.0)
-        return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
+        return np.clip(np.rint(dn), 0, IR_MAX_DN).astype(np.uint16)
 
     def _require_open(self) -> None:
         if not self._open:

@@ -93,13 +93,13 @@ class NoiseFloor(Effect):
 @register
 @dataclass
 class ReadNoise(Effect):
-    """Sensor read noise in electrons RMS per pixel, independent of light: var += read_e^2."""
+    """Sensor read noise in electrons RMS per native pixel, independent of light: var += read_e^2."""
 
     name: ClassVar[str] = "read_noise"
     read_e: float = 8.0
 
     def image_noise(self, f: StopField) -> None:
-        f.image_var_e2 = f.image_var_e2 + self.read_e**2
+        f.image_var_e2 = f.image_var_e2 + self.read_e**2 * f.binning  # a binned pixel sums `binning` reads
 
 
 @register

@@ -39,8 +39,8 @@ class SensorPhysics:
 
     pattern_e_per_ms_at_1m: projector pattern photo-electrons per ms of exposure from a matte
         wall at Z = 1 m.
-    texture_e_per_ms: scene-texture photo-electrons per ms with the projector off (room light),
-        independent of Z.
+    texture_e_per_ms: photo-electrons per ms from the wall's texture in daylight (room light),
+        independent of Z; what passive stereo matches on.
     contrast: the pattern's intensity gradient per px as a fraction of its intensity.
     window_px: pixels in the matching window (W in the paper's eq. disparity_error_unassisted).
     min_signal_e: below this signal a pixel has no match and reads 0.
@@ -121,23 +121,34 @@ def build_field(
     exposure_us: float,
     gain: float,
     effects: list["Effect"],
+    room_lit: bool = False,
+    roughness_m: np.ndarray | float = 0.0,
 ) -> StopField:
-    """The per-pixel field of one stop, with every effect's static part applied."""
+    """The per-pixel field of one stop, with every effect's static part applied.
+
+    room_lit: daylight on the wall. With the projector off it lights the wall's texture (the
+    paper's day-time passive runs); with the projector on it only adds light without pattern
+    contrast. Without it (night) the projector is the only light.
+    roughness_m: the wall's fixed relief along Z at each pixel (a real wall is not flat to the
+    depth unit; it makes each pixel's rounding phase different).
+    """
     h, w = shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     xn = (u - cx) / fx
     yn = (v - cy) / fy
     z_m, (nx, nz) = wall_range_m(xn, distance_m, tilt_deg)
+    z_m = z_m + roughness_m
     ray_norm = np.sqrt(1.0 + xn**2 + yn**2)
     cos_inc = np.abs(nx * xn + nz) / ray_norm
     # Rendering below native resolution bins native pixels: each rendered pixel collects
     # (native/rendered)^2 times the electrons, so sigma_Z does not depend on the resolution.
     binning = (NATIVE_WIDTH / w) * (NATIVE_HEIGHT / h)
     exposure_ms = exposure_us / 1000.0
+    daylight_e = physics.texture_e_per_ms * exposure_ms * binning if room_lit else 0.0
     if projector_on:
         signal = physics.pattern_e_per_ms_at_1m * exposure_ms * binning / z_m**2
     else:
-        signal = np.full(shape, physics.texture_e_per_ms * exposure_ms * binning)
+        signal = np.full(shape, daylight_e)
     f = StopField(
         z_m=z_m,
         xn=xn,
@@ -148,7 +159,7 @@ def build_field(
         exposure_ms=exposure_ms,
         gain=gain,
         signal_e=signal,
-        ambient_e=np.zeros(shape),
+        ambient_e=np.full(shape, daylight_e if projector_on else 0.0),
         image_var_e2=np.zeros(shape),
         binning=binning,
     )
@@ -158,9 +169,12 @@ def build_field(
     for e in effects:
         e.image_noise(f)
     gradient2 = physics.window_px * (physics.contrast * f.signal_e) ** 2
-    f.sigma_d2_px2 = 2.0 * f.image_var_e2 / gradient2  # left + right images
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f.sigma_d2_px2 = 2.0 * f.image_var_e2 / gradient2  # left + right images
     for e in effects:
         e.disparity_noise(f)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f.sigma_d2_px2 = np.where(f.signal_e > 0, f.sigma_d2_px2, np.inf)
     f.valid = f.signal_e >= physics.min_signal_e * binning
     return f
 

@@ -12,10 +12,12 @@ class Wall:
     distance_m: camera-to-wall distance along the optical axis, in m.
     tilt_deg: rotation of the wall about the camera's vertical (y) axis; 0 = perpendicular
     to the optical axis. Positive tilt makes the right side of the image (u > cx) nearer.
+    roughness_m: RMS relief of the wall surface along Z (fixed per pixel), m.
     """
 
     distance_m: float = 1.0
     tilt_deg: float = 0.0
+    roughness_m: float = 0.0005
 
 
 @dataclass

@@ -21,7 +21,8 @@ STOPS = [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]
 
 
 def test_perpendicular_records_every_stop_with_positions_settings_and_series(tmp_path):
-    path, _, devices = record_perpendicular(tmp_path / "a.h5", frames=12, width=24, ambient_frames=3)
+    path, _, devices = record_perpendicular(tmp_path / "a.h5", frames=12, width=24, ambient_frames=3,
+                                            effects="ambient(ambient_e_per_ms=20)")
     with Recording(path) as rec:
         assert rec.protocol == "perpendicular"
         assert rec.protocol_params["stops_m"] == STOPS
@@ -43,12 +44,19 @@ def test_perpendicular_records_every_stop_with_positions_settings_and_series(tmp
         assert np.nanmean(s.series.center_mean_m) == pytest.approx(z, rel=0.01)
         assert s.ir_mean is not None and s.ir_mean.shape == s.stats.count.shape
         assert s.ambient_ir_mean is not None
-    # with the projector off the IR image shows room light, the same at every distance;
-    # the projected pattern falls as 1/Z^2 (1 m -> 2 m: a quarter)
+    # with the projector off the IR image shows the ambient light: 20 e-/ms * 8.5 ms * 0.08 DN/e-
+    # = 13.6 DN at every distance; the projected pattern falls as 1/Z^2
     ambient = np.array([s.ambient_ir_mean.mean() for s in stops])
-    assert np.ptp(ambient) < 0.1 * ambient.mean()
-    ir = {s.commanded_position_m: s.ir_mean.mean() for s in stops}
-    assert ir[1.0] / ir[2.0] == pytest.approx(4.0, rel=0.05)
+    assert ambient == pytest.approx(13.6, rel=0.05)
+    pattern = {s.commanded_position_m: s.ir_mean.mean() - 13.6 for s in stops}
+    assert pattern[1.0] / pattern[2.0] == pytest.approx(4.0, rel=0.05)
+
+
+def test_night_time_active_run_sees_no_light_with_the_projector_off(tmp_path):
+    path, _, _ = record_perpendicular(tmp_path / "n.h5", frames=4, width=16, ambient_frames=2, stops_m=[1.0])
+    with Recording(path) as rec:
+        (stop,) = list(rec.stops())
+    assert stop.ambient_ir_mean.mean() < 0.5 and stop.ir_mean.mean() > 100
 
 
 def test_stored_statistics_equal_numpy_on_the_raw_frames(tmp_path):
