@@ -20,6 +20,7 @@ from drivers.camera import CameraSettings, DepthCamera, FrameMetadata
 from drivers.errors import CameraError, DeviceError
 from drivers.stage import Stage
 from rig.recording import CameraCalibration, FrameSeries, RecordingError, RecordingWriter
+from rig.image_regions import center_box
 from rig.stats import MeanImageAccumulator, PixelMomentAccumulator
 
 from .plan import Capture, Configure, Home, Move, Plan, Settle
@@ -94,13 +95,6 @@ def settings_mismatch(requested: CameraSettings, reported: CameraSettings | Fram
     if abs(reported.gain - requested.gain) > 0.5:
         out.append(f"gain {reported.gain:g} (asked {requested.gain:g})")
     return out
-
-
-def center_box(shape: tuple[int, int], fraction: float = 0.1) -> tuple[slice, slice]:
-    """The central region (fraction of each side, at least 4 px) for the per-frame series."""
-    h, w = shape
-    bh, bw = max(4, int(h * fraction)), max(4, int(w * fraction))
-    return slice((h - bh) // 2, (h + bh) // 2), slice((w - bw) // 2, (w + bw) // 2)
 
 
 class Runner:

@@ -25,8 +25,13 @@ class PixelSamples:
     stop: np.ndarray  # index of the stop the row comes from
     u_px: np.ndarray  # pixel column
     v_px: np.ndarray  # pixel row
-    ir: np.ndarray  # mean IR brightness, DN (NaN where not recorded)
+    ir: np.ndarray  # mean IR brightness, DN, smoothed over the matching window (NaN where not recorded)
     fill: np.ndarray  # fraction of the stop's frames in which the pixel was valid
+    rho2: np.ndarray  # squared normalised radius from the principal point: ((u-cx)/fx)^2 + ((v-cy)/fy)^2
+    cos_inc: np.ndarray  # cosine of the incidence angle on a plane fitted to the stop's mean depth
+    ambient_ratio: np.ndarray  # ambient / pattern brightness from the projector-off frames (NaN if none)
+    drift_var_m2: np.ndarray  # variance of the stop's mean depth over its frames, beyond noise, scaled to this pixel's range
+    projector_on: np.ndarray  # the stop's projector state
 
     @property
     def dof(self) -> np.ndarray:
@@ -46,24 +51,41 @@ class PixelSamples:
         return int(self.n.sum())
 
 
+#: the matching window over which brightness is averaged (px)
+BRIGHTNESS_WINDOW_PX = 7
+
+
 def load_samples(recording: Recording, *, min_count: int = 2) -> PixelSamples:
-    """All pixels with at least `min_count` valid samples, from every complete stop."""
+    """All pixels with at least `min_count` valid samples, from every complete stop, with covariates."""
+    from .covariates import ambient_ratio, drift_variance_m2, incidence_cosine, smoothed
+
+    cal = recording.calibration
     parts: dict[str, list[np.ndarray]] = {f.name: [] for f in fields(PixelSamples)}
     for i, stop in enumerate(recording.stops()):
         s = stop.stats
         keep = (s.count >= max(2, min_count)) & np.isfinite(s.mean_m) & (s.mean_m > 0)
         v, u = np.nonzero(keep)
+        n = len(u)
         n_frames = max(stop.n_frames, 1)
-        parts["z_m"].append(s.mean_m[keep])
+        z = s.mean_m[keep]
+        parts["z_m"].append(z)
         parts["m2_m2"].append(s.m2_m2[keep])
         parts["m4_m4"].append(s.m4_m4[keep])
         parts["n"].append(s.count[keep].astype(np.float64))
-        parts["stop"].append(np.full(len(u), i, np.int32))
+        parts["stop"].append(np.full(n, i, np.int32))
         parts["u_px"].append(u.astype(np.float32))
         parts["v_px"].append(v.astype(np.float32))
-        ir = stop.ir_mean[keep].astype(np.float64) if stop.ir_mean is not None else np.full(len(u), np.nan)
+        ir = smoothed(stop.ir_mean, BRIGHTNESS_WINDOW_PX)[keep] if stop.ir_mean is not None else np.full(n, np.nan)
         parts["ir"].append(ir)
         parts["fill"].append(s.count[keep] / n_frames)
+        xn, yn = (u - cal.cx) / cal.fx, (v - cal.cy) / cal.fy
+        parts["rho2"].append(xn**2 + yn**2)
+        parts["cos_inc"].append(incidence_cosine(s.mean_m, keep, cal)[keep])
+        amb = ambient_ratio(stop.ir_mean, stop.ambient_ir_mean, BRIGHTNESS_WINDOW_PX)
+        parts["ambient_ratio"].append(amb[keep] if amb is not None else np.full(n, np.nan))
+        d_var, z_c = drift_variance_m2(stop)
+        parts["drift_var_m2"].append(d_var * (z / z_c) ** 4 if np.isfinite(z_c) else np.zeros(n))
+        parts["projector_on"].append(np.full(n, stop.projector_on))
     if not parts["z_m"] or sum(len(a) for a in parts["z_m"]) == 0:
         raise ValueError(f"{recording.path}: no pixel has 2 or more valid samples; nothing to fit (check the stops and the camera's fill rate)")
     return PixelSamples(**{k: np.concatenate(v) for k, v in parts.items()})

@@ -23,7 +23,8 @@ def model_samples(k, lam, seed, pixels_per_stop=150, frames=40):
     nan = np.full(z.size, np.nan)
     return PixelSamples(z_m=mean, m2_m2=(d**2).sum(1), m4_m4=(d**4).sum(1), n=n,
                         stop=np.repeat(np.arange(STOPS.size), pixels_per_stop), u_px=nan, v_px=nan, ir=nan,
-                        fill=np.ones(z.size))
+                        fill=np.ones(z.size), rho2=np.zeros(z.size), cos_inc=np.ones(z.size), ambient_ratio=nan,
+                        drift_var_m2=np.zeros(z.size), projector_on=np.ones(z.size, bool))
 
 
 @pytest.mark.parametrize("k,lam", [(0.002, 3.0), (0.005, 2.0)])
