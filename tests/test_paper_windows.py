@@ -8,7 +8,6 @@ their difference, so the tests are conservative).
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import fields
 
 import numpy as np
@@ -97,15 +96,24 @@ def test_format_table_prints_every_window():
         assert f"{lo:.2f}-{hi:.2f} m" in text
 
 
-def test_scenario_effects_are_scaled_from_native_pixels():
-    sc = next(s for s in paper_scenarios() if s.censor_native_px is not None)
+def _field_sigma_d2(width, effects):
+    from drivers.camera import CameraSettings
+    from rig.devices import open_devices
 
-    def values(width):
-        return [float(v) for v in re.findall(r"=([0-9.eE+-]+)\)", sc.effects(width))]
+    cam = f"fake:width={width},depth_unit_mm=0.05" + (f",effects={effects}" if effects else "")
+    camera = open_devices(cam, "fake:").camera
+    with camera:
+        camera.configure(CameraSettings(projector_on=True, exposure_us=8500.0, gain=16.0, auto_exposure=False))
+        return camera.current_field().sigma_d2_px2.copy()
 
-    native, half = values(NATIVE_WIDTH_PX), values(NATIVE_WIDTH_PX // 2)
-    assert native == pytest.approx([sc.noise_floor_native_px, sc.censor_native_px])
-    assert half == pytest.approx([v / 2 for v in native])
+
+@pytest.mark.parametrize("width", [NATIVE_WIDTH_PX, 106])
+def test_scenario_noise_floor_means_native_pixels_at_any_width(width):
+    """The floor a scenario asks for, in native px, reaches the rendered disparity as px * width / 848."""
+    sc = next(s for s in paper_scenarios() if s.noise_floor_native_px > 0 and s.censor_native_px is None)
+    added = _field_sigma_d2(width, sc.effects(width)) - _field_sigma_d2(width, "")
+    expected = (sc.noise_floor_native_px * width / NATIVE_WIDTH_PX) ** 2
+    assert np.allclose(added, expected, rtol=1e-6), (added.mean(), expected)
 
 
 # -- the simulated scenarios ------------------------------------------------------------------
