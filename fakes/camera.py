@@ -22,7 +22,7 @@ from .world import FakeWorld
 EXPOSURE_RANGE_US = (1.0, 165000.0)
 GAIN_RANGE = (16.0, 248.0)
 #: digital numbers per photo-electron of the IR image at gain 16 (x1); the image is 10-bit (Y16)
-IR_DN_PER_E = 0.08
+IR_DN_PER_E = 0.04
 IR_MAX_DN = 1023
 
 
@@ -31,6 +31,8 @@ class FakeCamera(DepthCamera):
 
     effects: extra physical effects (see `fakes.effects`), e.g. [NoiseFloor(0.03)].
     fail_at_frame: raise a CameraError when this frame number is reached (a simulated unplug).
+    conceal: leave the physics and effects out of `info()` (for blind tests: the recording
+        must not say what was simulated).
     light: "day" (room light on the wall), "night" (the projector is the only light), or "auto":
         night if the camera is first configured with the projector on (the paper's night-time
         active runs), day otherwise (its day-time passive runs).
@@ -53,6 +55,7 @@ class FakeCamera(DepthCamera):
         fail_at_frame: int | None = None,
         serial: str = "FAKE-0001",
         light: str = "auto",
+        conceal: bool = False,
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -80,10 +83,14 @@ class FakeCamera(DepthCamera):
         self._field_key: tuple | None = None
         self._field: StopField | None = None
         relief_rng = np.random.default_rng(seed + 7919)
-        # the projected dots (bright/dark, averaging 1 so a smoothed IR image shows the mean signal)
-        self._dots = relief_rng.choice(np.array([1 / 3, 5 / 3], np.float32), size=(height, width))
+        # the projected dots: a random 7x7 cell of bright and dark dots, normalised to mean 1 and
+        # tiled, so every matching window (7x7) holds the same light: the mean signal the noise uses
+        cell = relief_rng.choice(np.array([1 / 3, 5 / 3]), size=(7, 7))
+        cell /= cell.mean()
+        self._dots = np.tile(cell, (height // 7 + 1, width // 7 + 1))[:height, :width].astype(np.float32)
         self._relief = relief_rng.standard_normal((height, width))  # the wall's relief, times roughness_m
         self.light = light
+        self.conceal = conceal
         self._room_lit: bool | None = {"day": True, "night": False, "auto": None}[light]
 
     @classmethod
@@ -129,7 +136,7 @@ class FakeCamera(DepthCamera):
             intrinsics=self.intrinsics,
             baseline_m=self.baseline_m,
             depth_scale_m=self.depth_scale_m,
-            extra={
+            extra={"fps": self.fps} if self.conceal else {
                 "physics": vars(self.physics),
                 "effects": [e.to_dict() for e in self.effects],
                 "light": self.light,

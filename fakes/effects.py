@@ -5,7 +5,8 @@ Every effect overrides only the hooks it needs (see `fakes.physics` for the pipe
   image_noise(field)      add to field.image_var_e2
   disparity_noise(field)  add to field.sigma_d2_px2
   frame(ctx, d_px, valid) change one frame's disparities (px) or validity, in place
-Names match the model effects in `rig.effects`, so what is simulated can be looked for.
+Names match the model effects in `rig.models`, so what is simulated can be looked for.
+Parameters in px are native sensor pixels (848x480); a smaller rendered image scales them.
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ class NoiseFloor(Effect):
     sigma_px: float = 0.03
 
     def disparity_noise(self, f: StopField) -> None:
-        f.sigma_d2_px2 = f.sigma_d2_px2 + self.sigma_px**2
+        f.sigma_d2_px2 = f.sigma_d2_px2 + (self.sigma_px * f.px_scale) ** 2
 
 
 @register
@@ -157,7 +158,8 @@ class Outliers(Effect):
         hit = ctx.rng.random(d_px.shape, dtype=np.float32) < self.fraction
         n = int(hit.sum())
         if n:
-            d_px[hit] = ctx.field.d_true_px[hit] + ctx.rng.uniform(-self.width_px, self.width_px, n)
+            w = self.width_px * ctx.field.px_scale
+            d_px[hit] = ctx.field.d_true_px[hit] + ctx.rng.uniform(-w, w, n)
 
 
 @register
@@ -169,7 +171,8 @@ class Quantization(Effect):
     step_px: float = 0.125
 
     def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
-        np.multiply(np.round(d_px / self.step_px), self.step_px, out=d_px)
+        step = np.float32(self.step_px * ctx.field.px_scale)
+        np.multiply(np.round(d_px / step), step, out=d_px)
 
 
 @register
@@ -182,7 +185,7 @@ class Drift(Effect):
     tau_s: float = 30.0
 
     def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
-        d_px += np.float32(self.amplitude_px * np.exp(-ctx.time_s / self.tau_s))
+        d_px += np.float32(self.amplitude_px * ctx.field.px_scale * np.exp(-ctx.time_s / self.tau_s))
 
 
 @register
@@ -194,4 +197,4 @@ class Censoring(Effect):
     threshold_px: float = 0.2
 
     def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
-        valid &= np.abs(d_px - ctx.field.d_true_px) <= self.threshold_px
+        valid &= np.abs(d_px - ctx.field.d_true_px) <= self.threshold_px * ctx.field.px_scale

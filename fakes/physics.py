@@ -72,6 +72,7 @@ class StopField:
     ambient_e: np.ndarray  # photo-electrons of uniform ambient light per image (no contrast)
     image_var_e2: np.ndarray  # noise variance per image, e^2
     binning: float = 1.0  # native pixels per rendered pixel
+    px_scale: float = 1.0  # rendered px per native px (disparities here are in rendered px)
     sigma_d2_px2: np.ndarray = field(default_factory=lambda: np.zeros(0))
     valid: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
@@ -162,6 +163,7 @@ def build_field(
         ambient_e=np.full(shape, daylight_e if projector_on else 0.0),
         image_var_e2=np.zeros(shape),
         binning=binning,
+        px_scale=fx / NATIVE_FX_PX,
     )
     for e in effects:
         e.illumination(f)

@@ -7,15 +7,19 @@ ambient-to-pattern brightness ratio, and the drift of the mean depth during the 
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import uniform_filter
+from scipy.ndimage import gaussian_filter
 
 from .recording import CameraCalibration, StopData
 from .image_regions import center_box
 
 
 def smoothed(image: np.ndarray, window_px: int) -> np.ndarray:
-    """Mean over a window_px x window_px box (the matcher's window): brightness as the matcher sees it."""
-    return uniform_filter(image.astype(np.float64), size=window_px, mode="nearest")
+    """Brightness as the matcher sees it, without the projected dots: a Gaussian of sigma = window_px.
+
+    Averaging over several matching windows removes the dot pattern (whose period is about a
+    window); illumination changes slowly across the image, so it survives. Borders reflect.
+    """
+    return gaussian_filter(image.astype(np.float64), sigma=window_px, mode="reflect")
 
 
 def ambient_ratio(ir_mean: np.ndarray | None, ambient_ir_mean: np.ndarray | None, window_px: int) -> np.ndarray | None:
