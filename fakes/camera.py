@@ -214,7 +214,7 @@ class FakeCamera(DepthCamera):
         self._require_open()
         f = self.current_field()
         d_true = f.d_true_px.astype(np.float32)
-        sigma_d = np.sqrt(f.sigma_d2_px2).astype(np.float32)
+        sigma_d = np.where(f.valid, np.sqrt(np.where(f.valid, f.sigma_d2_px2, 0.0)), 0.0).astype(np.float32)
         units_per_px = np.float32(f.fb_px_m / self.depth_scale_m)  # Z/unit = (f b / unit) / d
         meta = FrameMetadata(
             exposure_us=self._settings.exposure_us,

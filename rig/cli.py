@@ -79,9 +79,26 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _model_data(path: str):
+    from .models import ModelData
+
+    return ModelData.from_recording(path)
+
+
+def _parse_model(text: str):
+    from .models import parse_model
+
+    try:
+        return parse_model(text)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from .analysis import fit_recording
 
+    if args.model:
+        return _fit_model(args)
     r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
     if args.json:
         print(json.dumps(r.fit.to_dict(), indent=2))
@@ -95,6 +112,97 @@ def cmd_fit(args: argparse.Namespace) -> int:
         out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
         print(f"plot: {out}")
     return 0
+
+
+def _fit_model(args: argparse.Namespace) -> int:
+    from .metrics import headline, held_out_nll
+
+    model = _parse_model(args.model)
+    d = _model_data(args.recording)
+    if args.z_min is not None or args.z_max is not None:
+        d = d.select((d.z_m >= (args.z_min or 0)) & (d.z_m <= (args.z_max or float("inf"))))
+    try:
+        f = model.fit(d)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    h = headline(f, d)
+    if args.json:
+        print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
+                          "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
+                          "within_noise": h.within_noise}, indent=2))
+        return 0
+    print(f.report())
+    print(f"    headline error: {h}")
+    if not args.no_held_out:
+        print(f"    held-out negative log-likelihood per degree of freedom: {held_out_nll(model, d, f):.6f}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .metrics import headline, held_out_nll
+
+    d = _model_data(args.recording)
+    models = [_parse_model(m) for m in args.models.split(",")]
+    rows = []
+    for m in models:
+        try:
+            f = m.fit(d)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f)))
+    base_bic = rows[0][1].bic
+    w = max(len(m.name) for m, *_ in rows) + 2
+    print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>13} {'dBIC':>12} {'held-out NLL/dof':>17}")
+    for m, f, h, nll in rows:
+        print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {('yes' if h.within_noise else 'no'):>13} "
+              f"{f.bic - base_bic:>12.1f} {'' if nll is None else f'{nll:.6f}':>17}")
+    best = min(rows, key=lambda r: r[1].bic)
+    print(f"\nLowest BIC: {best[0].name}; its headline error is {best[2]}.")
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from .diagnose import diagnose, render_text
+    from .diagnosis_report import write_html, write_plots
+
+    d = _model_data(args.recording)
+    model = _parse_model(args.model) if args.model else None
+    try:
+        diag = diagnose(d, model, source=args.recording)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    print(render_text(diag))
+    out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
+    plots = write_plots(diag, out)
+    page = write_html(diag, plots, out)
+    print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .scenarios import answer_path, hidden_scenario, record_scenario
+
+    if args.scenario != "hidden":
+        raise UsageError(f"unknown scenario {args.scenario!r}; the one scenario is 'hidden'")
+    try:
+        sc = hidden_scenario(args.seed, args.effect, width=args.width, frames=args.frames)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    out = record_scenario(sc, args.output)
+    print(f"recorded {out} (seed {args.seed}); the hidden effect is written only to {answer_path(out)}")
+    return 0
+
+
+def cmd_paper_windows(args: argparse.Namespace) -> int:
+    from .paper_windows import paper_windows_main
+
+    return paper_windows_main(args.rest)
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from .validation import main as validation_main
+
+    return validation_main(args.rest)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -135,7 +243,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--plot", help="write a sigma-vs-range PNG here")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
+    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("compare", help="fit several models and show their errors side by side")
+    p.add_argument("recording")
+    p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
+    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("diagnose", help="where the model fails and which physical effect is most likely missing")
+    p.add_argument("recording")
+    p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
+    p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("simulate", help="record a simulated experiment with a hidden effect (answer in OUT.answer.json)")
+    p.add_argument("output")
+    p.add_argument("--scenario", default="hidden")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--effect", help="hide this effect instead of the seed's choice (for validation)")
+    p.add_argument("--width", type=int, default=106)
+    p.add_argument("--frames", type=int, default=100)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("paper-windows", help="the paper's k/lambda-per-window table on simulated data")
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=cmd_paper_windows)
+
+    p = sub.add_parser("validate-diagnosis", help="blind test of rig diagnose on hidden-effect simulations")
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("stage-sim", help="run a simulated stage controller on a pseudo-terminal (grbl or zaber)")
     p.add_argument("rest", nargs=argparse.REMAINDER)

@@ -412,10 +412,19 @@ class Quantization(Effect):
         pred.add(q2 / 12 + step2 / 12, -(q2**2) / 120 - step2**2 / 120)
 
 
+#: the largest value a uint16 depth image holds; 0 means no data
+MAX_DEPTH_UNITS = 65535
+
+
 class Outliers(Effect):
     """Mismatches: a fraction of samples is uniform within +-width_px of the true disparity (Gaussian + uniform mixture).
 
-    var = (1 - f) var + f a^2 / 3, a = width_px Z^2 / (f b); E[x^4] = (1 - f) (3 var^2 + k4) + f a^4 / 5.
+    An outlier's range is Z_o = f b / (d0 + u), u uniform on [-w, w], d0 = f b / Z, so exactly
+    E[Z_o] = f b ln((d0 + w) / (d0 - w)) / (2 w) and E[Z_o^2] = (f b)^2 / (d0^2 - w^2) (eq. dist_to_disp).
+    Mixture about its mean: var = (1 - f) (var0 + (Z - m)^2) + f (var_o + (E[Z_o] - m)^2),
+    m = (1 - f) Z + f E[Z_o]. The fourth moment uses the linearised outlier spread a = w Z^2 / (f b):
+    E[x^4] = (1 - f) (3 var0^2 + k4) + f a^4 / 5, scaled to the exact variance. Outliers beyond
+    the deepest range the depth format can hold (65535 depth units) are missing, not recorded.
     """
 
     name = "outliers"
@@ -429,13 +438,28 @@ class Outliers(Effect):
 
     def apply(self, pred, p, d):
         f, w = p["outliers.fraction"], p["outliers.width_px"]
-        a2 = d.disparity_to_range(w**2)
+        fb, z = d.fb_px_m, d.z_m
+        d0 = fb / z
+        # mismatches beyond the deepest range the depth format holds (65535 units) read as no data
+        u_lo = np.maximum(-w, fb / (MAX_DEPTH_UNITS * d.depth_unit_m) - d0)
+        u_lo = np.minimum(u_lo, w - 1e-9)
+        span = w - u_lo
+        mean_o = fb * np.log((d0 + w) / (d0 + u_lo)) / span
+        var_o = fb**2 * (1 / (d0 + u_lo) - 1 / (d0 + w)) / span - mean_o**2
+        kept = span / (2 * w)
+        f_all = f
+        f = f_all * kept / (1 - f_all + f_all * kept)
+        pred.fill = (pred.fill if pred.fill is not None else 1.0) * (1 - f_all + f_all * kept)
+        w_eff = span / 2
+        m = (1 - f) * z + f * mean_o
         var0 = pred.var_m2
+        var = (1 - f) * (var0 + (z - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
+        a2 = d.disparity_to_range(w_eff**2)
         k40 = pred.k4_m4 if pred.k4_m4 is not None else 0.0
-        m4 = (1 - f) * (3 * var0**2 + k40) + f * a2**2 / 5
-        var = (1 - f) * var0 + f * a2 / 3
+        m4_lin = (1 - f) * (3 * var0**2 + k40) + f * a2**2 / 5
+        var_lin = (1 - f) * var0 + f * a2 / 3
         pred.var_m2 = var
-        pred.k4_m4 = m4 - 3 * var**2
+        pred.k4_m4 = m4_lin * (var / var_lin) ** 2 - 3 * var**2
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (

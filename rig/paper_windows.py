@@ -143,23 +143,12 @@ def lambda_trend(rows: Sequence[WindowRow], frm: tuple[float, float] = TREND_FRO
 
 # -- scenarios -------------------------------------------------------------------------------
 
-def _effects_take_native_px() -> bool:
-    """True if the fake camera's effects read px parameters as native px and scale them themselves."""
-    from dataclasses import fields as dc_fields
-
-    from fakes.physics import StopField
-
-    return any(f.name == "px_scale" for f in dc_fields(StopField))
-
-
 @dataclass
 class Scenario:
     """Settings for the fake camera, with the effects given in NATIVE D435 pixels (848 px wide).
 
-    The fake camera renders smaller images by binning native pixels, so its disparities scale
-    with width / 848. `effects(width)` writes the parameters so that they mean native px at any
-    simulated width: as they are, if the fake effects scale their px parameters themselves
-    (`fakes.physics.StopField.px_scale`), else multiplied by width / 848.
+    The fake camera's effects take px parameters in native px and scale them to the rendered
+    image themselves (`fakes.physics.StopField.px_scale`).
 
     noise_floor_native_px: sigma of a brightness-independent disparity noise, native px
         (fakes.effects.NoiseFloor: sigma_d^2 += s^2, i.e. sigma_Z grows as Z^2, eq. error_prop_unassisted).
@@ -182,15 +171,14 @@ class Scenario:
         return "active" if self.projector_on else "passive"
 
     def effects(self, width_px: int) -> str:
-        """The fake camera's effects string at image width `width_px` (rendered px = native px * width / 848)."""
-        scale = 1.0 if _effects_take_native_px() else width_px / NATIVE_WIDTH_PX
+        """The fake camera's effects string (px parameters in native px, at any rendered width)."""
         parts = []
         if self.noise_floor_native_px > 0:
-            parts.append(f"noise_floor(sigma_px={self.noise_floor_native_px * scale:.6g})")
+            parts.append(f"noise_floor(sigma_px={self.noise_floor_native_px:.6g})")
         if self.read_noise_e > 0:
             parts.append(f"read_noise(read_e={self.read_noise_e:g})")
         if self.censor_native_px is not None:
-            parts.append(f"censoring(threshold_px={self.censor_native_px * scale:.6g})")
+            parts.append(f"censoring(threshold_px={self.censor_native_px:.6g})")
         return "+".join(parts)
 
     def describe(self) -> str:

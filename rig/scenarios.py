@@ -32,7 +32,7 @@ HIDDEN: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
     "ambient": lambda r: {"ambient_e_per_ms": r.uniform(10.0, 40.0)},
     "slant_range": lambda r: {},
     "incidence": lambda r: {},
-    "outliers": lambda r: {"fraction": r.uniform(0.003, 0.02), "width_px": r.uniform(0.5, 2.0)},
+    "outliers": lambda r: {"fraction": r.uniform(0.005, 0.03), "width_px": r.uniform(0.2, 0.6)},
     "quantization": lambda r: {"depth_unit_mm": r.uniform(0.3, 0.6)},
     "drift": lambda r: {"amplitude_px": r.uniform(0.05, 0.15), "tau_s": r.uniform(5.0, 15.0)},
     "censoring": lambda r: {"threshold_px": r.uniform(0.15, 0.3)},
