@@ -3,7 +3,9 @@
 `diagnose(data)` fits the model (by default the physical one: `active` with the projector on,
 `passive` without), tries every applicable effect not in it, and ranks them by evidence:
 the drop in BIC and the likelihood-ratio p-value. An effect is significant when BIC falls by
-more than 10 (very strong evidence) and p < 0.001.
+more than 10 (very strong evidence) and p < 0.001. It is reported as missing only if the
+model without it is off by more than sampling noise (see `rig.metrics.headline`): with
+hundreds of millions of samples, effects too small to matter are still significant.
 
 Effects that fit the data about equally well (an improvement within 2 % of the best) cannot
 be told apart by the fit; among them the one with fewer free parameters is preferred, because
@@ -70,6 +72,10 @@ class Diagnosis:
         """One or two plain sentences: what is missing, or that nothing is."""
         m = self.model_fit.model.name
         if self.best is None:
+            minor = [c.effect.name for c in self.candidates if c.significant]
+            if minor:
+                return (f"Nothing material is missing from {m}: its headline error is {self.model_headline}. "
+                        f"({', '.join(minor)} would raise the likelihood a little, but the model already fits to within sampling noise.)")
             return (f"Nothing significant is missing from {m}: no effect lowers BIC by more than "
                     f"{-SIGNIFICANT_DBIC:g}; the headline error is {self.model_headline}.")
         e = self.best.effect
@@ -167,12 +173,16 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", seco
     base = model.fit(d)
     pl = base if model.name == "power_law" else Model(power_law).fit(d)
     cands = rank_candidates(model, base, d)
+    base_head = headline(base, d)
     best, equivalent = choose(cands)
+    if base_head.within_noise:
+        # significant but immaterial: the model already describes the error to within sampling noise
+        best, equivalent = None, []
     refit_head = headline(best.fit, d) if best else None
     after: list[Candidate] = []
     if best is not None and second_round:
         after = [c for c in rank_candidates(best.fit.model, best.fit, d) if c.significant]
-    return Diagnosis(source, d, base, pl, headline(base, d), cands, best, equivalent, refit_head,
+    return Diagnosis(source, d, base, pl, base_head, cands, best, equivalent, refit_head,
                      residuals(base, d), after)
 
 

@@ -69,6 +69,8 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
         # variance (pixels of different sigma would otherwise inflate it), rescaled to the bin's measured variance
         if np.isfinite(d.m4_m4[m]).any():
             kurt = float(np.nansum(d.m4_m4[m] / var_p[m] ** 2) / n[m].sum() * (var_pred / var_meas) ** 2)
+            n_mean = float(n[m].mean())
+            kurt *= (n_mean + 1) / (n_mean - 1)  # about the sample mean, a normal's kurtosis reads 3 (n-1)/(n+1)
         else:
             kurt = np.nan
         excess = (kurt - 3) if np.isfinite(kurt) else 0.0
