@@ -30,7 +30,6 @@ from rig.devices import DeviceSpec, register_stage
 from .errors import StageError
 from .stage import Stage
 
-RESUME = "then re-run with --resume"
 CABLE = "check the USB cable and that the controller is powered"
 
 # --- GRBL 1.1 codes (gnea/grbl doc/csv) --------------------------------------------------------
@@ -222,7 +221,7 @@ class SerialLine:
 
     def _disconnected(self, doing: str, e: Exception) -> StageError:
         self.close()
-        return self.error(f"port disconnected while {doing} ({_one_line(e)})", f"{CABLE}, {RESUME}")
+        return self.error(f"port disconnected while {doing} ({_one_line(e)})", f"{CABLE}")
 
     def write(self, data: bytes, what: str) -> None:
         port = self._require()
@@ -260,11 +259,11 @@ class SerialLine:
         shown = raw if isinstance(raw, str) else raw[:60]
         return GarbledReply(
             f"{self.name}: garbled reply {shown!r} to {what}; check that baud={self.baud} matches the controller "
-            f"and that the cable is sound and away from motor wiring, {RESUME}"
+            f"and that the cable is sound and away from motor wiring"
         )
 
     def no_reply(self, what: str, timeout_s: float) -> StageError:
-        return self.error(f"no reply to {what} within {timeout_s:.1f} s", f"{CABLE}, {RESUME}")
+        return self.error(f"no reply to {what} within {timeout_s:.1f} s", f"{CABLE}")
 
 
 def _one_line(e: Exception) -> str:
@@ -512,12 +511,12 @@ class GrblStage(Stage):
             code = int(text[6:])
             self._homed = False
             meaning, fix = GRBL_ALARMS.get(code, ("unknown alarm", "check the controller"))
-            raise self.link.error(f"{text} during {during or what} ({meaning})", f"{fix}, {RESUME}")
+            raise self.link.error(f"{text} during {during or what} ({meaning})", f"{fix}")
         if _BANNER.match(text):
             self._homed = False
             raise self.link.error(
                 f"controller reset unexpectedly during {what} (banner {text!r}), position lost",
-                f"check its power supply and the USB cable, {RESUME}",
+                f"check its power supply and the USB cable",
             )
         raise self.link.garbled(text, what)
 
@@ -537,20 +536,20 @@ class GrblStage(Stage):
             elif status.state == "Alarm":
                 self._homed = False
                 raise self.link.error(
-                    f"controller in Alarm during {what}", f"check the rail and limit switches, {RESUME}"
+                    f"controller in Alarm during {what}", f"check the rail and limit switches"
                 )
             elif status.state == "Door":
-                raise self.link.error(f"safety door open during {what}", f"close it, {RESUME}")
+                raise self.link.error(f"safety door open during {what}", f"close it")
             elif status.state in ("Check", "Sleep"):
                 raise self.link.error(
                     f"controller in {status.state} mode during {what}, nothing moves",
-                    "leave it ($C toggles check mode; a reset wakes it from sleep), " + RESUME,
+                    "leave it ($C toggles check mode; a reset wakes it from sleep)",
                 )
             if time.monotonic() > deadline:
                 raise self.link.error(
                     f"still moving {timeout_s:.1f} s after {what} (state {status.state}, X {status.x_mm:.3f} mm)",
                     "check the rail for obstruction, a feed hold and the feed rate "
-                    f"(feed={self.feed_mm_min:.0f}), {RESUME}",
+                    f"(feed={self.feed_mm_min:.0f})",
                 )
             time.sleep(self.poll_s)
 
@@ -559,7 +558,7 @@ def _grbl_error_fix(code: int) -> str:
     if code in (5, 10):
         return "enable homing on the controller ($22=1) or add homing=0 to the device string"
     if code == 9:
-        return f"the controller is in alarm; re-home the stage, {RESUME}"
+        return f"the controller is in alarm; re-home the stage"
     if code == 15:
         return "make travel_mm match the controller's $130 or change the plan's stops"
     if code == 22:
@@ -736,7 +735,7 @@ class ZaberStage(Stage):
             if line is None:
                 raise self.link.error(
                     f"no reply to {what} within {self.timeout_s:.1f} s",
-                    f"{CABLE}, that it speaks ASCII at baud={self.link.baud} and is device {self.device}, {RESUME}",
+                    f"{CABLE}, that it speaks ASCII at baud={self.link.baud} and is device {self.device}",
                 )
             if not line or line[0] in "#!":
                 continue  # info and alert messages
@@ -752,7 +751,7 @@ class ZaberStage(Stage):
         if reply.flag in ("WR", "WH"):
             self._homed = False
             return self.link.error(
-                f"{what} rejected: no reference position ({reply.flag})", "home the stage, " + RESUME
+                f"{what} rejected: no reference position ({reply.flag})", "home the stage "
             )
         meaning = ZABER_REJECTIONS.get(reply.data, "unknown reason")
         fix = ("check microstep_um and offset_m against the stage's travel (limit.max)"
@@ -777,7 +776,7 @@ class ZaberStage(Stage):
             if time.monotonic() > deadline:
                 raise self.link.error(
                     f"still moving {timeout_s:.1f} s after {what!r}",
-                    f"check the rail for obstruction and the stage's speed setting, {RESUME}",
+                    f"check the rail for obstruction and the stage's speed setting",
                 )
             time.sleep(self.poll_s)
 
@@ -787,21 +786,21 @@ class ZaberStage(Stage):
             self._homed = False
             raise self.link.error(
                 f"stage fault {flag} ({meaning}) during {what!r}",
-                f"clear the rail, check the load and power supply, {RESUME} (homing clears the fault)",
+                f"clear the rail, check the load and power supply (homing clears the fault)",
             )
         if flag == "WL":
             raise self.link.error(
                 f"unexpected limit trigger (WL) during {what!r}",
-                f"check the limit sensor and that offset_m and travel fit the rail, {RESUME}",
+                f"check the limit sensor and that offset_m and travel fit the rail",
             )
         if flag == "NI":
             raise self.link.error(
                 f"movement interrupted (NI) during {what!r}",
-                f"make sure nothing else (knob, Zaber Launcher) commands the stage, {RESUME}",
+                f"make sure nothing else (knob, Zaber Launcher) commands the stage",
             )
         if flag in ("WR", "WH") and not homing:
             self._homed = False
-            raise self.link.error(f"lost its reference position ({flag}) during {what!r}", "home the stage, " + RESUME)
+            raise self.link.error(f"lost its reference position ({flag}) during {what!r}", "home the stage ")
 
 
 @register_stage("zaber")

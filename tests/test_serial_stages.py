@@ -212,7 +212,7 @@ def test_wrong_device_gives_no_banner():
 def test_dropped_reply_times_out(homed):
     sim, stage = homed
     sim.inject("drop_reply")
-    with raises_for_port(sim, "no reply to", "within 0.3 s", "check the USB cable", "--resume"):
+    with raises_for_port(sim, "no reply to", "within 0.3 s", "check the USB cable"):
         stage.position_m()
     assert stage.position_m() == pytest.approx(0.3, abs=1e-6)  # the next exchange works
 
@@ -221,7 +221,7 @@ def test_dropped_reply_during_a_move(homed):
     sim, stage = homed
     stage.move_to(1.0)
     sim.inject("drop_reply")  # the move command itself is lost
-    with raises_for_port(sim, "no reply to", "--resume"):
+    with raises_for_port(sim, "no reply to"):
         stage.move_to(2.0)
     assert sim.carriage.position_mm(time.monotonic()) == pytest.approx(700.0, abs=1e-3)
 
@@ -229,7 +229,7 @@ def test_dropped_reply_during_a_move(homed):
 def test_line_noise_is_reported_as_garbled(homed):
     sim, stage = homed
     sim.inject("noise")
-    with raises_for_port(sim, "garbled reply", "baud=115200", "--resume"):
+    with raises_for_port(sim, "garbled reply", "baud=115200"):
         stage.position_m()
     assert stage.move_to(1.2) == pytest.approx(1.2, abs=1e-6)
 
@@ -237,7 +237,7 @@ def test_line_noise_is_reported_as_garbled(homed):
 def test_unplug_while_idle(homed):
     sim, stage = homed
     sim.inject("unplug")
-    with raises_for_port(sim, "port disconnected", "check the USB cable", "--resume"):
+    with raises_for_port(sim, "port disconnected", "check the USB cable"):
         stage.position_m()
     reopened = make_stage(sim.kind, sim.port)
     with raises_for_port(sim, "no such serial port", f"rig stage-sim {sim.kind}"):
@@ -248,7 +248,7 @@ def test_unplug_during_a_move(homed):
     sim, stage = homed
     sim.carriage.speed_mm_s = 5000.0
     threading.Timer(0.1, sim.inject, args=("unplug",)).start()
-    with raises_for_port(sim, "port disconnected", "--resume"):
+    with raises_for_port(sim, "port disconnected"):
         stage.move_to(3.0)
 
 
@@ -268,7 +268,7 @@ def test_position_error_fails_the_tolerance_check(homed):
 def test_grbl_soft_limit_alarm_and_recovery():
     with make_sim("grbl", travel_mm=2000.0) as sim, make_stage("grbl", sim.port, travel_mm=3000.0) as stage:
         stage.home()
-        with raises_for_port(sim, "ALARM:2", "soft limit", "$130", "--resume"):
+        with raises_for_port(sim, "ALARM:2", "soft limit", "$130"):
             stage.move_to(2.8)  # inside the driver's travel, beyond the controller's
         assert sim.critical
         with raises_for_port(sim, "not homed"):
@@ -281,7 +281,7 @@ def test_grbl_soft_limit_alarm_and_recovery():
 def test_grbl_hard_limit_alarm_when_soft_limits_are_off():
     with make_sim("grbl", travel_mm=2000.0, soft_limits=False) as sim, make_stage("grbl", sim.port) as stage:
         stage.home()
-        with raises_for_port(sim, "ALARM:1", "hard limit", "during 'G53 G1 X2500.000", "--resume"):
+        with raises_for_port(sim, "ALARM:1", "hard limit", "during 'G53 G1 X2500.000"):
             stage.move_to(2.8)
         assert sim.carriage.position_mm(time.monotonic()) == pytest.approx(2000.0)
         stage.home()
@@ -323,7 +323,7 @@ def test_grbl_unexpected_reset_is_reported():
         stage.home()
         stage.move_to(1.0)
         sim.power_cycle()
-        with raises_for_port(sim, "reset unexpectedly", "position lost", "--resume"):
+        with raises_for_port(sim, "reset unexpectedly", "position lost"):
             stage.position_m()
         with raises_for_port(sim, "not homed"):
             stage.move_to(1.5)
@@ -349,7 +349,7 @@ def test_zaber_stall_fault():
         stage.home()
         stage.move_to(0.5)
         sim.inject("stall")
-        with raises_for_port(sim, "fault FS", "stalled and stopped", "--resume"):
+        with raises_for_port(sim, "fault FS", "stalled and stopped"):
             stage.move_to(2.5)
         assert "FS" in sim.flags
         stage.home()  # homing clears the fault
