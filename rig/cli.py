@@ -103,9 +103,17 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(r.fit.to_dict(), indent=2))
     else:
+        from .metrics import headline
+        from .models import Model, ModelData, power_law
+
         mode = "projector on" if r.projector_on else "projector off"
         print(f"{r.path}: {r.protocol}, {mode}")
         print(r.fit.report())
+        d = ModelData.from_recording(args.recording)
+        if args.z_min is not None or args.z_max is not None:
+            d = d.select((d.z_m >= (args.z_min or 0)) & (d.z_m <= (args.z_max or float("inf"))))
+        print(f"    headline error: {headline(Model(power_law).fit(d), d)}")
+        print(f"    (what is missing? rig diagnose {args.recording})")
     if args.plot:
         from .plots import SigmaSeries, plot_sigma_vs_range
 
