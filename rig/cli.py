@@ -290,11 +290,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: commands with their own argument parser: `rig NAME ARGS...` hands ARGS (and --help) to it
+PASS_THROUGH = {"stage-sim": cmd_stage_sim, "paper-windows": cmd_paper_windows, "validate-diagnosis": cmd_validate}
+
+
 def main(argv: list[str] | None = None) -> int:
     from protocols.experiment_file import ExperimentFileError
     from protocols.runner import RunError
 
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in PASS_THROUGH:
+        args = argparse.Namespace(func=PASS_THROUGH[argv[0]], rest=argv[1:])
+    else:
+        args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError) as e:
