@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import subprocess
 import sys
 import venv
@@ -21,9 +22,35 @@ BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
 STAMP = VENV / ".rig-installed"
 
 
+#: system packages (Debian names) and how to tell they are there: libusb for pyrealsense2,
+#: tmux for the test that drives `rig tui` in a real terminal
+SYSTEM_PACKAGES = {"libusb-1.0-0": lambda: _has_library("libusb-1.0.so.0"), "tmux": lambda: shutil.which("tmux") is not None}
+
+
+def _has_library(name: str) -> bool:
+    out = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True).stdout if shutil.which("ldconfig") else ""
+    return name in out or any(Path(d, name).exists() for d in ("/usr/lib/x86_64-linux-gnu", "/usr/lib", "/lib/x86_64-linux-gnu"))
+
+
+def system_packages() -> None:
+    """Install missing system packages with apt-get when we are root on Debian/Ubuntu; else say what to run."""
+    missing = [pkg for pkg, present in SYSTEM_PACKAGES.items() if not present()]
+    if not missing:
+        return
+    cmd = ["apt-get", "install", "-y", "--no-install-recommends", *missing]
+    if hasattr(os, "geteuid") and os.geteuid() == 0 and shutil.which("apt-get"):
+        print(f"dev.py: installing system packages: {' '.join(missing)}", flush=True)
+        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+        subprocess.run(["apt-get", "update", "-qq"], check=True, env=env, stdout=subprocess.DEVNULL)
+        subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+    else:
+        print(f"dev.py: missing system packages {', '.join(missing)}; install them with: sudo {' '.join(cmd)}", flush=True)
+
+
 def setup() -> None:
     if sys.version_info < (3, 11):
         sys.exit(f"rig needs Python 3.11 or newer; this is {sys.version.split()[0]}. Install a newer Python and re-run.")
+    system_packages()
     if not (BIN / "python").exists():
         print(f"dev.py: creating {VENV}", flush=True)
         venv.EnvBuilder(with_pip=True).create(VENV)
