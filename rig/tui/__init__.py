@@ -1,0 +1,16 @@
+"""`rig tui`: the lab operator's terminal UI (Textual). See docs/tui.md.
+
+Importing this package does not import Textual; `tui_main` does, when it is called.
+"""
+
+from __future__ import annotations
+
+
+def tui_main(argv: list[str] | None = None) -> int:
+    """Run the terminal UI: `rig tui [--camera S] [--stage S] [--experiment FILE.toml] [RECORDING.h5]`."""
+    from .app import tui_main as main
+
+    return main(argv)
+
+
+__all__ = ["tui_main"]

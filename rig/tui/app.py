@@ -1,0 +1,294 @@
+"""`rig tui`: the lab operator's terminal UI over the runner, the recording and the analysis.
+
+Four screens as tabs (keys 1-4 or F1-F4): Devices, Experiment, Run, Results. Every action
+has a key in the footer; the footer shows only the actions of the screen in front, and hides
+single-letter keys while a text field has the focus (esc leaves the field).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.css.query import NoMatches
+from textual.widgets import Footer, Input, Select, TabbedContent, TabPane
+
+from .devices_pane import DevicesPane
+from .experiment_pane import ExperimentPane
+from .form import DEFAULT_CAMERA, DEFAULT_STAGE, ExperimentSettings
+from .live import Clock
+from .results_pane import ResultsPane
+from .run_pane import RunPane
+
+TABS = ("devices", "experiment", "run", "results")
+
+#: the screen each action belongs to; actions not listed work everywhere
+ACTION_TAB = {
+    "connect": "devices", "disconnect": "devices", "test_capture": "devices", "home": "devices",
+    "load_experiment": "experiment", "save_experiment": "experiment", "run_from_form": "experiment",
+    "start_run": "run", "pause": "run", "unpause": "run", "abort": "run", "resume_run": "run",
+    "open_recording": "results", "refit": "results",
+}
+#: actions on plain letter keys: hidden while a text field has the focus (the field takes the letter)
+LETTER_ACTIONS = {"connect", "disconnect", "test_capture", "home", "start_run", "pause", "unpause", "abort",
+                  "resume_run", "open_recording", "refit"}
+
+
+class RigApp(App):
+    """The operator's UI. `camera`/`stage` are device strings; `recording` opens on Results."""
+
+    CSS_PATH = "rig.tcss"
+    TITLE = "rig"
+    ENABLE_COMMAND_PALETTE = False
+    BINDINGS = [
+        Binding("1,f1", "show_tab('devices')", "Devices", show=False),
+        Binding("2,f2", "show_tab('experiment')", "Experiment", show=False),
+        Binding("3,f3", "show_tab('run')", "Run", show=False),
+        Binding("4,f4", "show_tab('results')", "Results", show=False),
+        Binding("c", "connect", "Connect"),
+        Binding("x", "disconnect", "Disconnect"),
+        Binding("t", "test_capture", "Test capture"),
+        Binding("h", "home", "Home stage"),
+        Binding("ctrl+l", "load_experiment", "Load"),
+        Binding("ctrl+s", "save_experiment", "Save"),
+        Binding("ctrl+r", "run_from_form", "Run"),
+        Binding("r", "start_run", "Run"),
+        Binding("p", "pause", "Pause"),
+        Binding("p", "unpause", "Continue"),
+        Binding("a", "abort", "Abort"),
+        Binding("u", "resume_run", "Resume file"),
+        Binding("o", "open_recording", "Open"),
+        Binding("f", "refit", "Refit"),
+        Binding("escape", "leave_field", "Leave field"),
+        Binding("ctrl+q", "quit", "Quit", priority=True),
+    ]
+
+    def __init__(self, camera: str = DEFAULT_CAMERA, stage: str = DEFAULT_STAGE, *, recording: str | None = None,
+                 experiment: ExperimentSettings | None = None, experiment_file: str = "experiment.toml",
+                 connect: bool = True, clock: Clock = time.monotonic) -> None:
+        super().__init__()
+        self._camera, self._stage = camera, stage
+        self._recording = recording
+        self._experiment = experiment
+        self._experiment_file = experiment_file
+        self._connect = connect
+        self._clock = clock
+
+    def compose(self) -> ComposeResult:
+        with TabbedContent(initial="results" if self._recording else "devices", id="tabs"):
+            with TabPane("1 Devices", id="devices"):
+                yield DevicesPane(self._camera, self._stage, id="devices-pane")
+            with TabPane("2 Experiment", id="experiment"):
+                yield ExperimentPane(self._experiment, self._experiment_file, id="experiment-pane")
+            with TabPane("3 Run", id="run"):
+                yield RunPane(self._clock, id="run-pane")
+            with TabPane("4 Results", id="results"):
+                yield ResultsPane(self._recording or "", id="results-pane")
+        yield Footer(compact=True, show_command_palette=False)
+
+    def on_mount(self) -> None:
+        if self._connect:
+            self.devices.connect()
+        if self._recording:
+            self.results.open()
+        self._focus_for(self.tab)
+
+    # -- the panes --------------------------------------------------------------------------
+    @property
+    def devices(self) -> DevicesPane:
+        return self.query_one(DevicesPane)
+
+    @property
+    def experiment(self) -> ExperimentPane:
+        return self.query_one(ExperimentPane)
+
+    @property
+    def run_pane(self) -> RunPane:
+        return self.query_one(RunPane)
+
+    @property
+    def results(self) -> ResultsPane:
+        return self.query_one(ResultsPane)
+
+    @property
+    def tab(self) -> str:
+        return self.query_one(TabbedContent).active
+
+    # -- which keys are live ----------------------------------------------------------------
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        try:
+            return self._check_action(action)
+        except NoMatches:  # asked before the screens are mounted
+            return True
+
+    def _check_action(self, action: str) -> bool | None:
+        typing = isinstance(self.focused, (Input, Select))
+        if action == "leave_field":
+            return typing
+        if action in LETTER_ACTIONS and typing:
+            return False
+        tab = ACTION_TAB.get(action)
+        if tab is not None and tab != self.tab:
+            return False
+        run = self.run_pane.state
+        if action == "pause":
+            return run.status == "running"
+        if action == "unpause":
+            return run.status == "paused"
+        if action == "abort":
+            return run.active
+        if action in ("start_run", "run_from_form"):
+            return None if run.active else True
+        if action == "resume_run":
+            return False if run.active or not self.run_pane.can_resume(self._output()) else True
+        if action in ("connect", "disconnect", "home", "test_capture"):
+            if self.devices.busy or run.active:
+                return None
+            if action in ("disconnect", "home", "test_capture"):
+                return True if self.devices.session.connected else None
+        if action in ("open_recording", "refit"):
+            if self.results.busy:
+                return None
+            if action == "refit":
+                return True if self.results.session.diagnosis is not None else None
+        return True
+
+    def on_tabbed_content_tab_activated(self, event: TabbedContent.TabActivated) -> None:
+        if event.pane.id == self.tab:  # a later switch may have overtaken this one; focusing would undo it
+            self._focus_for(self.tab)
+        self.refresh_bindings()
+
+    def _focus_for(self, tab: str) -> None:
+        if tab == "experiment":
+            self.query_one("#toml-path", Input).focus()
+        elif tab == "results" and self.results.session.diagnosis is None and not self.results.path:
+            self.query_one("#recording-path", Input).focus()
+        elif tab == "results" and self.results.session.diagnosis is not None:
+            self.results.query_one("#effects").focus()
+        else:
+            self.set_focus(None)
+
+    # -- actions ----------------------------------------------------------------------------
+    def action_show_tab(self, tab: str) -> None:
+        self.query_one(TabbedContent).active = tab
+
+    def action_leave_field(self) -> None:
+        self.set_focus(None)
+        self.refresh_bindings()
+
+    def action_connect(self) -> None:
+        if self.run_pane.running:
+            self.devices.status.show("a run has the devices; wait for it to end", "error")
+            return
+        self.devices.connect()
+
+    def action_disconnect(self) -> None:
+        self.devices.disconnect()
+
+    def action_home(self) -> None:
+        self.devices.home()
+
+    def action_test_capture(self) -> None:
+        s = self.experiment.checked_settings()
+        if s is None:
+            self.devices.status.show("the experiment's settings are refused; see the Experiment screen", "error")
+            return
+        from drivers.camera import CameraSettings
+
+        self.devices.test_capture(CameraSettings(projector_on=s.projector_on, exposure_us=s.exposure_us, gain=s.gain))
+
+    def action_load_experiment(self) -> None:
+        devices = self.experiment.load()
+        if devices is not None:
+            self.devices.set_strings(*devices)
+
+    def action_save_experiment(self) -> None:
+        self.experiment.save(self.devices.camera_string, self.devices.stage_string)
+
+    def action_run_from_form(self) -> None:
+        if self._start(resume=False):
+            self.action_show_tab("run")
+
+    def action_start_run(self) -> None:
+        self._start(resume=False)
+
+    def action_resume_run(self) -> None:
+        self._start(resume=True)
+
+    def action_pause(self) -> None:
+        self.run_pane.toggle_pause()
+
+    def action_unpause(self) -> None:
+        self.run_pane.toggle_pause()
+
+    def action_abort(self) -> None:
+        self.run_pane.abort()
+
+    def action_open_recording(self) -> None:
+        self.results.open()
+
+    def action_refit(self) -> None:
+        self.results.refit()
+
+    async def action_quit(self) -> None:
+        if self.run_pane.running:
+            self.run_pane.live.abort()  # completed stops stay in the file; the run's thread ends at the next frame
+        self.exit()
+
+    # -- glue -------------------------------------------------------------------------------
+    def _output(self) -> str:
+        try:
+            return self.experiment.settings().output
+        except Exception:
+            return ""
+
+    def _start(self, *, resume: bool) -> bool:
+        s = self.experiment.checked_settings()
+        if s is None:
+            self.run_pane.status.show("the experiment is not valid; see the Experiment screen (2)", "error")
+            return False
+        if self.devices.busy:
+            self.run_pane.status.show("a device operation is under way; try again when it is done", "error")
+            return False
+        if self.devices.session.connected:
+            self.devices.released("the run opens the devices itself")
+        self.run_pane.start(s, self.devices.camera_string, self.devices.stage_string, self.devices.session, resume=resume)
+        return True
+
+    def on_run_pane_finished(self, m: RunPane.Finished) -> None:
+        if m.state.status in ("done", "aborted") and Path(m.state.output).exists() and not self.results.busy:
+            self.results.set_path(m.state.output)
+        self.refresh_bindings()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rig tui", description="The lab operator's terminal UI: devices, experiment, run, results.")
+    p.add_argument("recording", nargs="?", help="a recording (.h5) to open on the Results screen")
+    p.add_argument("--camera", help=f"camera device string (default {DEFAULT_CAMERA}, or the experiment file's)")
+    p.add_argument("--stage", help=f"stage device string (default {DEFAULT_STAGE}, or the experiment file's)")
+    p.add_argument("--experiment", help="experiment file (TOML, as rig run takes) to load into the Experiment screen")
+    p.add_argument("--no-connect", action="store_true", help="do not connect the devices at start")
+    return p
+
+
+def tui_main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    camera, stage = args.camera or DEFAULT_CAMERA, args.stage or DEFAULT_STAGE
+    settings = None
+    if args.experiment:
+        from protocols.experiment_file import ExperimentFileError
+
+        try:
+            settings, file_camera, file_stage = ExperimentSettings.load(args.experiment)
+        except ExperimentFileError as e:
+            print(f"rig tui: error: {e}", file=sys.stderr)
+            return 2
+        camera, stage = args.camera or file_camera, args.stage or file_stage
+    app = RigApp(camera, stage, recording=args.recording, experiment=settings,
+                 experiment_file=args.experiment or "experiment.toml", connect=not args.no_connect)
+    app.run()
+    return 0

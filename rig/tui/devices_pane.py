@@ -1,0 +1,143 @@
+"""Devices: which camera and stage, what they read back, and a test capture."""
+
+from __future__ import annotations
+
+from textual import work
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.message import Message
+from textual.widgets import Input, Label
+
+from drivers.camera import CameraSettings
+from drivers.errors import DeviceError
+
+from .devices_service import DeviceReport, DeviceSession, TestCapture, describe_error
+from .widgets import KeyValues, StatusLine
+
+
+class DevicesPane(Vertical):
+    """Device strings, connect/disconnect/home, read-back and a test capture."""
+
+    class Done(Message):
+        """A device operation finished (in the worker); the screen shows its outcome."""
+
+        def __init__(self, what: str, report: DeviceReport | None = None, capture: TestCapture | None = None,
+                     error: str = "") -> None:
+            super().__init__()
+            self.what, self.report, self.capture, self.error = what, report, capture, error
+
+    def __init__(self, camera: str, stage: str, **kw) -> None:
+        super().__init__(**kw)
+        self.session = DeviceSession()
+        self._camera, self._stage = camera, stage
+        self.busy = False
+
+    def compose(self) -> ComposeResult:
+        with Horizontal(classes="field"):
+            yield Label("Camera", classes="label")
+            yield Input(self._camera, id="camera-string", compact=True)
+        with Horizontal(classes="field"):
+            yield Label("Stage", classes="label")
+            yield Input(self._stage, id="stage-string", compact=True)
+        yield StatusLine("not connected: press c to connect", id="devices-status")
+        with Horizontal(classes="columns"):
+            yield KeyValues(id="camera-info", classes="left")
+            with Vertical(classes="right"):
+                yield KeyValues(id="stage-info")
+                yield KeyValues(id="capture-info")
+
+    # -- what the app asks ------------------------------------------------------------------
+    @property
+    def camera_string(self) -> str:
+        return self.query_one("#camera-string", Input).value.strip()
+
+    @property
+    def stage_string(self) -> str:
+        return self.query_one("#stage-string", Input).value.strip()
+
+    def set_strings(self, camera: str, stage: str) -> None:
+        self.query_one("#camera-string", Input).value = camera
+        self.query_one("#stage-string", Input).value = stage
+
+    @property
+    def status(self) -> StatusLine:
+        return self.query_one("#devices-status", StatusLine)
+
+    def connect(self) -> None:
+        self._start("connect", f"connecting {self.camera_string} and {self.stage_string} ...")
+
+    def disconnect(self) -> None:
+        self._start("disconnect", "disconnecting ...")
+
+    def home(self) -> None:
+        self._start("home", "homing the stage ...")
+
+    def test_capture(self, settings: CameraSettings) -> None:
+        self._start("capture", "capturing 10 frames ...", settings)
+
+    def released(self, why: str) -> None:
+        """The run takes the devices (and closes them here, in its own thread): say so."""
+        self._clear()
+        self.status.show(f"disconnected: {why}; press c to connect again", "info")
+
+    # -- work -------------------------------------------------------------------------------
+    def _start(self, what: str, text: str, settings: CameraSettings | None = None) -> None:
+        if self.busy:
+            self.status.show("busy: wait for the device operation to finish", "error")
+            return
+        self.busy = True
+        self.status.show(text, "busy")
+        self.app.refresh_bindings()
+        self._work(what, self.camera_string, self.stage_string, settings)
+
+    @work(thread=True, exclusive=True, group="devices")
+    def _work(self, what: str, camera: str, stage: str, settings: CameraSettings | None) -> None:
+        try:
+            if what == "connect":
+                self.post_message(self.Done(what, report=self.session.connect(camera, stage)))
+            elif what == "disconnect":
+                self.session.disconnect()
+                self.post_message(self.Done(what))
+            elif what == "home":
+                self.post_message(self.Done(what, report=self.session.home()))
+            elif what == "capture":
+                assert settings is not None
+                capture = self.session.test_capture(settings)
+                self.post_message(self.Done(what, report=self.session.report(), capture=capture))
+        except DeviceError as e:
+            self.post_message(self.Done(what, error=describe_error(e) if what == "connect" else str(e)))
+
+    def on_devices_pane_done(self, m: Done) -> None:
+        self.busy = False
+        self.app.refresh_bindings()
+        if m.error:
+            if m.what == "connect":
+                self._clear()
+            self.status.show(m.error, "error")
+            return
+        if m.what == "disconnect":
+            self._clear()
+            self.status.show("disconnected; press c to connect", "info")
+            return
+        if m.report is not None:
+            self.query_one("#camera-info", KeyValues).show_rows(m.report.camera, "camera")
+            self.query_one("#stage-info", KeyValues).show_rows(m.report.stage, "stage")
+        if m.what == "connect":
+            self.status.show(f"connected: {self.session.camera_text} and {self.session.stage_text}", "ok")
+        elif m.what == "home":
+            self.status.show("stage homed", "ok")
+        elif m.what == "capture" and m.capture is not None:
+            c = m.capture
+            self.query_one("#capture-info", KeyValues).show_rows([
+                ("frames", str(c.frames)), ("fill rate", f"{100 * c.fill_rate:.1f} %"),
+                ("range centre", f"{c.centre_mean_m:.4f} m"), ("sigma centre", f"{1000 * c.centre_sigma_m:.3f} mm"),
+            ], "test capture")
+            self.status.show(f"test capture: fill {100 * c.fill_rate:.1f} %, centre {c.centre_mean_m:.3f} m", "ok")
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        event.stop()
+        self.connect()
+
+    def _clear(self) -> None:
+        for wid in ("#camera-info", "#stage-info", "#capture-info"):
+            self.query_one(wid, KeyValues).show_rows([])

@@ -1,0 +1,142 @@
+"""The Results screen's work, without Textual: open a recording, diagnose it, refit with effects.
+
+Everything is `rig diagnose`'s: `ModelData.from_recording`, `diagnose` (fit, ranked candidate
+effects, headline error, residuals by range and radius, plain-language summary). Adding an
+effect is `diagnose(data, base + effects)`; the history keeps the headline error after each
+change so the screen can chart it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rig.diagnose import Diagnosis, default_model, diagnose
+from rig.metrics import Headline
+from rig.models import EFFECTS, Model, ModelData
+
+
+@dataclass
+class HistoryEntry:
+    change: str  # "active", "+ slant_range", "- incidence"
+    model: str
+    headline: Headline
+
+
+@dataclass
+class FitRow:
+    name: str
+    value: str
+    se: str
+    unit: str
+
+
+@dataclass
+class BinRow:
+    section: str  # "radius" or "range"
+    label: str
+    ratio: float  # measured / predicted sigma
+    pm: float  # two standard errors of the ratio
+    flagged: bool
+
+
+@dataclass
+class CandidateRow:
+    effect: str
+    dbic: float | None  # None for effects already in the model
+    significant: bool
+    in_model: bool
+
+    def prompt(self) -> str:
+        if self.in_model or self.dbic is None:
+            return f"{self.effect:<13} in the model"
+        return f"{self.effect:<13} {self.dbic:>9.1f}{' *' if self.significant else ''}"
+
+
+class ResultsSession:
+    """One recording, its data and its diagnosis as the operator adds and removes effects."""
+
+    def __init__(self) -> None:
+        self.path: Path | None = None
+        self.data: ModelData | None = None
+        self.diagnosis: Diagnosis | None = None
+        self.base: Model | None = None
+        self.history: list[HistoryEntry] = []
+
+    def open(self, path: str | Path) -> Diagnosis:
+        path = Path(path)
+        data = ModelData.from_recording(path)
+        diag = diagnose(data, source=str(path), second_round=False)
+        self.path, self.data, self.diagnosis = path, data, diag
+        self.base = default_model(data)
+        self.history = [HistoryEntry(diag.model_fit.model.name, diag.model_fit.model.name, diag.model_headline)]
+        return diag
+
+    @property
+    def effects(self) -> list[str]:
+        """Effects in the current model."""
+        return [] if self.diagnosis is None else [e.name for e in self.diagnosis.model_fit.model.effects]
+
+    def refit(self, effects: list[str]) -> Diagnosis:
+        """Fit the base model plus `effects` and diagnose what is still missing."""
+        if self.data is None or self.base is None:
+            raise ValueError("no recording is open; press o to open one")
+        unknown = [e for e in effects if e not in EFFECTS]
+        if unknown:
+            raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(EFFECTS)}")
+        before = self.effects
+        model = self.base
+        for name in effects:
+            model = model + EFFECTS[name]
+        diag = diagnose(self.data, model, source=str(self.path), second_round=False)
+        self.diagnosis = diag
+        added = [e for e in effects if e not in before]
+        removed = [e for e in before if e not in effects]
+        change = " ".join([f"+ {e}" for e in added] + [f"- {e}" for e in removed]) or "refit"
+        self.history.append(HistoryEntry(change, model.name, diag.model_headline))
+        return diag
+
+    # -- what the screen shows --------------------------------------------------------------
+    def fit_rows(self) -> list[FitRow]:
+        d = self.diagnosis
+        if d is None:
+            return []
+        f = d.model_fit
+        rows = []
+        for name, p in f.model.parameters():
+            v = f.values[name]
+            se = f.errors.get(name, math.nan) if p.vary else math.nan
+            rows.append(FitRow(name, f"{v:.5g}", "fixed" if not p.vary else f"{se:.2g}", p.unit))
+        pl = d.power_law_fit
+        for name in ("k", "lambda"):
+            if name in pl.values:
+                rows.append(FitRow(f"power law: {name}", f"{pl.values[name]:.5g}", f"{pl.errors.get(name, math.nan):.2g}", ""))
+        return rows
+
+    def bin_rows(self) -> list[BinRow]:
+        d = self.diagnosis
+        if d is None:
+            return []
+        rows = []
+        for section, b in (("radius", d.residuals.by_radius), ("range", d.residuals.by_range)):
+            for lab, lr, se, fl in zip(b.labels, b.log_ratio, b.se_log, b.flagged):
+                r = float(np.exp(lr))
+                rows.append(BinRow(section, lab, r, 2 * float(se) * r, bool(fl)))
+        return rows
+
+    def candidate_rows(self) -> list[CandidateRow]:
+        d = self.diagnosis
+        if d is None:
+            return []
+        rows = [CandidateRow(e, None, False, True) for e in self.effects]
+        rows += [CandidateRow(c.effect.name, c.dbic, c.significant, False) for c in d.candidates]
+        return rows
+
+    def summary(self) -> str:
+        d = self.diagnosis
+        if d is None:
+            return ""
+        return d.summary()

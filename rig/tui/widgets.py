@@ -1,0 +1,188 @@
+"""Small widgets, one job each. They show values; they compute nothing about the camera."""
+
+from __future__ import annotations
+
+import math
+from typing import Iterable, Sequence
+
+from rich.table import Table
+from rich.text import Text
+from textual.binding import Binding
+from textual.app import ComposeResult
+from textual.containers import Vertical
+from textual.widgets import DataTable, Label, ProgressBar, SelectionList, Static
+from textual_plotext import PlotextPlot
+
+from .live import RunState, format_duration
+from .results_service import BinRow, CandidateRow, FitRow, HistoryEntry
+
+
+class StatusLine(Static):
+    """One line of what just happened; its class says how it went (info, ok, busy, error)."""
+
+    LEVELS = ("info", "ok", "busy", "error")
+
+    def show(self, text: str, level: str = "info") -> None:
+        for lv in self.LEVELS:
+            self.set_class(lv == level, f"-{lv}")
+        self.update(Text(text))
+
+    @property
+    def text(self) -> str:
+        return str(self.render())
+
+
+class KeyValues(Static):
+    """Label/value rows, e.g. a device's read-back. `plain` holds them as text."""
+
+    plain = ""
+
+    def show_rows(self, rows: Iterable[tuple[str, str]], title: str = "") -> None:
+        rows = list(rows)
+        self.plain = "\n".join([title] * bool(title) + [f"{k}: {v}" for k, v in rows])
+        t = Table.grid(padding=(0, 1))
+        t.add_column(style="bold", no_wrap=True)
+        t.add_column(overflow="fold")
+        if title:
+            t.add_row(Text(title, style="underline"), "")
+        for k, v in rows:
+            t.add_row(k, v)
+        self.update(t)
+
+
+class SigmaPlot(PlotextPlot):
+    """Sigma at the image centre against range, one point per completed stop."""
+
+    def on_mount(self) -> None:
+        self.show_points([])
+
+    def show_points(self, points: Sequence[tuple[float, float]]) -> None:
+        plt = self.plt
+        plt.clear_data()
+        plt.clear_figure()
+        plt.title("sigma at the centre vs range")
+        plt.xlabel("Z [m]")
+        plt.ylabel("sigma [mm]")
+        pts = [(z, s * 1000) for z, s in points if math.isfinite(z) and math.isfinite(s)]
+        if pts:
+            z, s = zip(*pts)
+            plt.plot(list(z), list(s), marker="braille")
+            plt.scatter(list(z), list(s), marker="dot")
+            lo, hi = min(z), max(z)
+            pad = max(0.05, 0.05 * (hi - lo))
+            plt.xlim(lo - pad, hi + pad)
+            plt.ylim(0, max(s) * 1.1)
+        else:
+            plt.xlim(0, 3.5)
+            plt.ylim(0, 1)
+        self.points = pts
+        self.refresh()
+
+
+class HeadlineChart(Static):
+    """The headline error after each change of the model, as bars, with the level noise alone gives."""
+
+    plain = ""
+
+    def show_history(self, history: Sequence[HistoryEntry], width: int = 14) -> None:
+        self.plain = "\n".join(f"{h.change}: {h.headline.error_pct:.2f} %" for h in history)
+        if not history:
+            self.update("")
+            return
+        top = max(h.headline.error_pct for h in history) or 1.0
+        t = Table.grid(padding=(0, 1))
+        t.add_column(no_wrap=True, max_width=16, overflow="ellipsis")
+        t.add_column(no_wrap=True)
+        t.add_column(justify="right", no_wrap=True)
+        for h in history:
+            n = h.headline.error_pct / top * width
+            bar = "█" * int(n) + ("▌" if n - int(n) >= 0.5 else "")
+            style = "green" if h.headline.within_noise else "red"
+            t.add_row(h.change, Text(bar.ljust(width), style=style), f"{h.headline.error_pct:6.2f} %")
+        last = history[-1].headline
+        t.add_row("noise alone", "", f"{last.noise_pct:6.2f} %")
+        self.update(t)
+
+
+class FitTable(DataTable):
+    """The fitted parameters and their standard errors."""
+
+    def on_mount(self) -> None:
+        self.cursor_type = "none"
+        self.add_columns("parameter", "value", "+/- se")
+
+    def show_rows(self, rows: Sequence[FitRow]) -> None:
+        self.clear()
+        for r in rows:
+            self.add_row(r.name, r.value, r.se)
+
+
+class BinTable(DataTable):
+    """Measured over predicted sigma by radius and by range (* = off by more than 3 se)."""
+
+    def on_mount(self) -> None:
+        self.cursor_type = "none"
+        self.add_columns("bin", "meas/pred", "+/-", "")
+
+    def show_rows(self, rows: Sequence[BinRow]) -> None:
+        self.clear()
+        section = None
+        for r in rows:
+            if r.section != section:
+                section = r.section
+                self.add_row(Text(f"by {section}", style="bold underline"), "", "", "")
+            self.add_row(r.label, f"{r.ratio:.3f}", f"{r.pm:.3f}", Text("*", style="bold red") if r.flagged else "")
+
+
+class EffectList(SelectionList[str]):
+    """Effects: those in the model are checked; the others ranked by evidence. Space adds or removes."""
+
+    BINDINGS = [Binding("space", "select", "Add/remove effect")]
+
+    def show_rows(self, rows: Sequence[CandidateRow]) -> None:
+        self.clear_options()
+        self.add_options([(r.prompt(), r.effect, r.in_model) for r in rows])
+        if rows:
+            self.highlighted = 0
+
+    def checked(self) -> list[str]:
+        """Checked effects in list order (those already in the model first)."""
+        chosen = set(self.selected)
+        return [self.get_option_at_index(i).value for i in range(self.option_count)
+                if self.get_option_at_index(i).value in chosen]
+
+
+class RunProgress(Vertical):
+    """Where the run is: a bar over stops and one over the current stop's frames."""
+
+    def compose(self) -> ComposeResult:
+        yield Label("stops", id="stops-label")
+        yield ProgressBar(total=1, show_eta=False, id="stops-bar")
+        yield Label("frames", id="frames-label")
+        yield ProgressBar(total=1, show_eta=False, id="frames-bar")
+
+    def show_state(self, s: RunState) -> None:
+        stop = f"  now {s.stop}" if s.stop and s.active else ""
+        self.query_one("#stops-label", Label).update(f"stops {s.stops_done}/{s.n_stops}{stop}")
+        self.query_one("#stops-bar", ProgressBar).update(total=max(s.n_stops, 1), progress=s.stops_done)
+        self.query_one("#frames-label", Label).update(f"frames {s.frame}/{s.n_frames}")
+        self.query_one("#frames-bar", ProgressBar).update(total=max(s.n_frames, 1), progress=s.frame)
+
+
+class LiveStats(KeyValues):
+    """The current stop's fill rate and sigma at the centre, time, and frames lost."""
+
+    def show_state(self, s: RunState) -> None:
+        def num(x: float, fmt: str) -> str:
+            return fmt.format(x) if math.isfinite(x) else "-"
+
+        self.show_rows([
+            ("fill rate", num(100 * s.fill_rate, "{:.1f} %")),
+            ("sigma centre", num(1000 * s.centre_sigma_m, "{:.3f} mm")),
+            ("range centre", num(s.centre_mean_m, "{:.3f} m")),
+            ("elapsed", format_duration(s.elapsed_s)),
+            ("remaining", format_duration(s.remaining_s) if s.active or s.status == "done" else "--:--"),
+            ("dropped", str(s.dropped)),
+            ("refused", f"{s.refused} (wrong settings)"),
+            ("output", s.output or "-"),
+        ])
