@@ -6,7 +6,6 @@ Nothing here waits on wall-clock time: workers are awaited by polling a conditio
 from __future__ import annotations
 
 import asyncio
-import os
 import shlex
 import shutil
 import subprocess
@@ -367,8 +366,7 @@ def test_runs_an_experiment_in_a_real_terminal(tmp_path):
         "[experiment]\nprotocol = \"perpendicular\"\n"
         f"camera = \"{CAMERA}\"\nstage = \"fake:\"\noutput = \"tmux-run.h5\"\n\n"
         "[parameters]\nstops_m = [0.5, 1.0]\nframes_per_stop = 5\n")
-    socket = f"rig-tui-test-{os.getpid()}"
-    tmux = ["tmux", "-L", socket, "-f", "/dev/null"]
+    tmux = ["tmux", "-S", str(tmp_path / "tmux.sock"), "-f", "/dev/null"]  # a server of our own, gone with tmp_path
     env = f"PYTHONPATH={shlex.quote(str(ROOT))} TERM=xterm-256color"
     command = f"cd {shlex.quote(str(tmp_path))} && {env} {shlex.quote(sys.executable)} -m rig.tui; echo TUI-EXIT=$?; sleep 60"
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 from drivers.camera import CameraSettings
 from drivers.errors import DeviceError
