@@ -245,7 +245,7 @@ class Runner:
         cy, cx = center_box(shape)
         series = {k: np.empty(step.n_frames, dtype) for k, dtype in (
             ("frame_number", np.int64), ("timestamp_ms", np.float64), ("center_mean_m", np.float64),
-            ("valid_fraction", np.float32), ("exposure_us", np.float32), ("gain", np.float32), ("projector_on", np.bool_))}
+            ("inverse_range_offset_per_m", np.float64), ("valid_fraction", np.float32), ("exposure_us", np.float32), ("gain", np.float32), ("projector_on", np.bool_))}
         self.refused = 0
         scale = info.depth_scale_m
         for j, frame in enumerate(self._frames_checked(step.n_frames, requested, ir=step.ir)):
@@ -253,7 +253,7 @@ class Runner:
             if self.control.abort.is_set():
                 raise _Aborted()
             depth = frame.depth
-            acc.add(depth)
+            series["inverse_range_offset_per_m"][j] = acc.add(depth)
             if raw is not None:
                 raw[j] = depth
             if step.ir and frame.ir is not None:
@@ -269,6 +269,7 @@ class Runner:
             series["projector_on"][j] = frame.metadata.projector_on
             if j % 10 == 0 or j == step.n_frames - 1:
                 self.progress(ProgressEvent("frame", step.stop, index, n_stops, frame=j + 1, n_frames=step.n_frames))
+        refused = self.refused  # the ambient capture below counts its own
         ambient = None
         if step.ambient_frames > 0:
             ambient = self._ambient(requested, step.ambient_frames)
@@ -277,7 +278,7 @@ class Runner:
         fill = float(np.mean(stats.count)) / step.n_frames
         writer.end_stop(
             g, stats=stats, series=FrameSeries(**series), ir_mean=ir_acc.result(), ambient_ir_mean=ambient,
-            extra_attrs={"frames_refused": self.refused, "measured_position_end_m": measured_end},
+            extra_attrs={"frames_refused": refused, "measured_position_end_m": measured_end},
         )
         c = stats.count[cy, cx] > 1
         sigma_c = float(np.sqrt(np.mean(stats.variance_m2[cy, cx][c]))) if c.any() else float("nan")

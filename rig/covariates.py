@@ -51,6 +51,29 @@ def incidence_cosine(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibrati
     return np.abs(normal[0] * xn + normal[1] * yn + normal[2]) / ray_norm
 
 
+def drift_inverse_variance(stop: StopData) -> float | None:
+    """Variance over frames of a common disparity-like offset, in (1/m)^2, beyond pixel noise; None if not recorded.
+
+    The per-frame series holds o_t = mean over valid pixels of 1/z - 1/z_ref. Pixel noise
+    contributes mean_p(s2_p / Z_p^4) / N to var_t(o) (since d(1/z) = -dz / z^2), and per-pixel
+    variances include the drift, so D = (var_t(o) - mean(s2 / Z^4) / N) / (1 - 1/N).
+    A pixel at range Z then sees a drift variance D Z^4 (m^2).
+    """
+    series = stop.series
+    if series is None:
+        return None
+    o = series.inverse_range_offset_per_m
+    if len(o) < 3 or not np.isfinite(o).all():
+        return None
+    var_p = stop.stats.variance_m2
+    ok = np.isfinite(var_p) & np.isfinite(stop.stats.mean_m)
+    n = float(np.mean(series.valid_fraction)) * var_p.size if np.isfinite(series.valid_fraction).all() else ok.sum()
+    if ok.sum() < 2 or n < 2:
+        return None
+    noise = float(np.mean(var_p[ok] / stop.stats.mean_m[ok] ** 4)) / n
+    return max((float(np.var(o, ddof=1)) - noise) / (1.0 - 1.0 / n), 0.0)
+
+
 def drift_variance_m2(stop: StopData) -> tuple[float, float]:
     """Variance over frames of the stop's mean depth beyond what pixel noise explains, and its range.
 

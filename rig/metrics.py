@@ -123,6 +123,14 @@ class Headline:
     def within_noise(self) -> bool:
         return self.p_value >= 1e-3
 
+    @property
+    def excess_pct(self) -> float:
+        """The part of the headline error beyond sampling noise: sqrt(error^2 - noise^2), 0 if none.
+
+        The RMS of ln ratios contains the sampling noise in quadrature; no model can remove
+        that part, so "the error halved" is judged on the excess."""
+        return float(np.sqrt(max(self.error_pct**2 - self.noise_pct**2, 0.0)))
+
     def __str__(self) -> str:
         verdict = "within noise" if self.within_noise else "beyond noise"
         return f"{self.error_pct:.2f} % (noise alone: {self.noise_pct:.2f} %; {verdict}, chi2 {self.chi2:.0f}/{self.dof})"

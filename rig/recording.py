@@ -47,12 +47,14 @@ class FrameSeries:
     frame_number: np.ndarray
     timestamp_ms: np.ndarray
     center_mean_m: np.ndarray  # mean valid depth in the central region, m (NaN if none)
+    inverse_range_offset_per_m: np.ndarray  # mean over valid pixels of 1/z - 1/z_first, 1/m (drift signal)
     valid_fraction: np.ndarray  # fraction of valid pixels in the whole frame
     exposure_us: np.ndarray
     gain: np.ndarray
     projector_on: np.ndarray
 
-    FIELDS = ("frame_number", "timestamp_ms", "center_mean_m", "valid_fraction", "exposure_us", "gain", "projector_on")
+    FIELDS = ("frame_number", "timestamp_ms", "center_mean_m", "inverse_range_offset_per_m", "valid_fraction",
+              "exposure_us", "gain", "projector_on")
 
 
 @dataclass

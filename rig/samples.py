@@ -57,7 +57,7 @@ BRIGHTNESS_WINDOW_PX = 7
 
 def load_samples(recording: Recording, *, min_count: int = 2) -> PixelSamples:
     """All pixels with at least `min_count` valid samples, from every complete stop, with covariates."""
-    from .covariates import ambient_ratio, drift_variance_m2, incidence_cosine, smoothed
+    from .covariates import ambient_ratio, drift_inverse_variance, drift_variance_m2, incidence_cosine, smoothed
 
     cal = recording.calibration
     parts: dict[str, list[np.ndarray]] = {f.name: [] for f in fields(PixelSamples)}
@@ -83,8 +83,12 @@ def load_samples(recording: Recording, *, min_count: int = 2) -> PixelSamples:
         parts["cos_inc"].append(incidence_cosine(s.mean_m, keep, cal)[keep])
         amb = ambient_ratio(stop.ir_mean, stop.ambient_ir_mean, BRIGHTNESS_WINDOW_PX)
         parts["ambient_ratio"].append(amb[keep] if amb is not None else np.full(n, np.nan))
-        d_var, z_c = drift_variance_m2(stop)
-        parts["drift_var_m2"].append(d_var * (z / z_c) ** 4 if np.isfinite(z_c) else np.zeros(n))
+        d_inv = drift_inverse_variance(stop)
+        if d_inv is not None:
+            parts["drift_var_m2"].append(d_inv * z**4)
+        else:  # recordings without the whole-frame series: the central region's mean depth
+            d_var, z_c = drift_variance_m2(stop)
+            parts["drift_var_m2"].append(d_var * (z / z_c) ** 4 if np.isfinite(z_c) else np.zeros(n))
         parts["projector_on"].append(np.full(n, stop.projector_on))
     if not parts["z_m"] or sum(len(a) for a in parts["z_m"]) == 0:
         raise ValueError(f"{recording.path}: no pixel has 2 or more valid samples; nothing to fit (check the stops and the camera's fill rate)")

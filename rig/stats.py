@@ -56,8 +56,13 @@ class PixelMomentAccumulator:
         self.s3 = np.zeros(shape, np.float64)
         self.s4 = np.zeros(shape, np.float64)
 
-    def add(self, depth: np.ndarray) -> None:
-        """Fold in one frame of depth units; zeros are missing data."""
+    def add(self, depth: np.ndarray) -> float:
+        """Fold in one frame of depth units (zeros are missing data).
+
+        Returns the frame's mean over valid pixels of 1/z - 1/z_ref in 1/m (z_ref: the pixel's
+        first sample): proportional to a disparity offset common to all pixels (d = f b / z),
+        whatever the scene's shape; its variance over frames measures drift. NaN if no pixel is valid.
+        """
         if depth.shape != self.shape:
             raise ValueError(f"frame shape {depth.shape} differs from the stop's {self.shape}")
         valid = depth != 0
@@ -74,6 +79,13 @@ class PixelMomentAccumulator:
         x3 = xf * x2
         self.s3 += x3
         self.s4 += x3 * xf
+        n_valid = np.count_nonzero(valid)
+        if n_valid == 0:
+            return float("nan")
+        # 1/z - 1/z_ref = -(z - z_ref) / (z z_ref), in depth units then scaled to 1/m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = -xf[valid] / (depth[valid].astype(np.float64) * self.shift[valid])
+        return float(inv.mean()) / self.depth_scale_m
 
     def result(self) -> PixelStats:
         n = self.count.astype(np.float64)

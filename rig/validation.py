@@ -2,7 +2,8 @@
 
 For each effect (and for none), record hidden-effect scenarios with several seeds
 (`rig.scenarios`), diagnose each blind, and count how often the hidden effect is named first,
-whether adding it halves the headline error and brings it within noise, and (for none)
+whether adding it halves the headline error (its part beyond sampling noise, which is all a
+model can remove) and brings it within noise, and (for none)
 whether the diagnosis says nothing significant is missing.
 """
 
@@ -44,7 +45,7 @@ def run_trial(effect: str, seed: int, workdir: Path) -> Trial:
     before = dg.model_headline
     after = dg.refit_headline or before
     return Trial(effect, seed, named, named == effect, before.error_pct, after.error_pct, after.noise_pct,
-                 after.error_pct <= 0.5 * before.error_pct or effect == "none", after.within_noise,
+                 after.excess_pct <= 0.5 * before.excess_pct or effect == "none", after.within_noise,
                  time.monotonic() - t0)
 
 
