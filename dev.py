@@ -58,7 +58,7 @@ def setup() -> None:
     if not STAMP.exists() or STAMP.read_text() != want:
         print("dev.py: installing rig and its dependencies into .venv (first run takes a minute)", flush=True)
         subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--upgrade", "pip"], check=True)
-        subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test]"], check=True)
+        subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test,oak]"], check=True)
         STAMP.write_text(want)
 
 

@@ -207,6 +207,24 @@ def cmd_paper_windows(args: argparse.Namespace) -> int:
     return paper_windows_main(args.rest)
 
 
+def cmd_import(args: argparse.Namespace) -> int:
+    from .importer import import_main
+
+    return import_main(args.rest)
+
+
+def cmd_devices(args: argparse.Namespace) -> int:
+    from .device_listing import devices_main
+
+    return devices_main(args.rest)
+
+
+def cmd_tui(args: argparse.Namespace) -> int:
+    from .tui import tui_main
+
+    return tui_main(args.rest)
+
+
 def cmd_validate(args: argparse.Namespace) -> int:
     from .validation import main as validation_main
 
@@ -276,6 +294,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=100)
     p.set_defaults(func=cmd_simulate)
 
+    for name, help_text in (
+        ("import", "turn folders of depth frames (16-bit PNG or .npy) into a recording (docs/import.md)"),
+        ("devices", "list attached cameras and serial ports; --check CAMERA checks one"),
+        ("tui", "the operator's terminal UI (docs/tui.md)"),
+    ):
+        p = sub.add_parser(name, help=help_text)
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+
     p = sub.add_parser("paper-windows", help="the paper's k/lambda-per-window table on simulated data")
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=cmd_paper_windows)
@@ -291,12 +317,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: commands with their own argument parser: `rig NAME ARGS...` hands ARGS (and --help) to it
-PASS_THROUGH = {"stage-sim": cmd_stage_sim, "paper-windows": cmd_paper_windows, "validate-diagnosis": cmd_validate}
+PASS_THROUGH = {"import": cmd_import, "devices": cmd_devices, "tui": cmd_tui, "stage-sim": cmd_stage_sim,
+                "paper-windows": cmd_paper_windows, "validate-diagnosis": cmd_validate}
 
 
 def main(argv: list[str] | None = None) -> int:
     from protocols.experiment_file import ExperimentFileError
     from protocols.runner import RunError
+
+    from .importer import FolderImportError
 
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in PASS_THROUGH:
@@ -305,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError) as e:
+    except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError, FolderImportError) as e:
         print(f"rig: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -113,7 +113,7 @@ def _load_plugins() -> None:
     """Import driver modules that register further kinds (serial stages, real cameras)."""
     import importlib
 
-    for module in ("drivers.serial_stages",):
+    for module in ("drivers.serial_stages", "drivers.realsense", "drivers.oak"):
         try:
             importlib.import_module(module)
         except ModuleNotFoundError as e:
