@@ -4,6 +4,7 @@ so the serial drivers (and a whole run) can be tried without hardware."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 import time
@@ -53,11 +54,18 @@ def _read_faults(sim: PtyController) -> None:
             print(e, flush=True)
 
 
+def _raise_interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def stage_sim_main(argv: list[str]) -> int:
     """Start the simulator, print its port and an example run line, serve until Ctrl-C.
     Typing a fault name (e.g. `noise`, `unplug`, `position_error mm=3`) injects it."""
     args = _parser().parse_args(argv)
     sim, options = _build(args)
+    # stop cleanly on SIGTERM as on Ctrl-C (a process started in the background by a
+    # non-interactive shell ignores SIGINT, so a supervisor stops it with SIGTERM)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
     with sim:
         device = f"{args.kind}://{sim.port}?" + options.format(travel=args.travel_mm, microstep=args.microstep_um)
         print(f"simulated {args.kind} controller on {sim.port}")

@@ -116,7 +116,8 @@ def test_stage_sim_command_serves_a_controller_a_run_can_use(tmp_path):
         assert main(["run", "--protocol", "perpendicular", "--frames", "3", "--stops", "0.5,1.0", "--camera", CAMERA,
                      "--stage", stage_string("grbl", port), "-o", str(tmp_path / "s.h5")]) == 0
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGTERM)  # as a supervisor would; SIGINT may be ignored in background jobs
         proc.wait(timeout=10)
+    assert proc.returncode == 0 and "stopped" in proc.stdout.read()
     with Recording(tmp_path / "s.h5") as rec:
         assert [s.commanded_position_m for s in rec.stops()] == [0.5, 1.0]
