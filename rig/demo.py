@@ -69,7 +69,9 @@ def run_demo(out_dir: Path, *, frames: int = 300, width: int = 424, seed: int = 
     print(f"  plot:      {plot}")
     for label, path in loop_files:
         print(f"  {label:<10} {path}")
-    print(f"\nDone in {time.monotonic() - t0:.0f} s. Next: rig fit {out_dir / 'perpendicular-active.h5'} --plot fit.png")
+    print(f"\nDone in {time.monotonic() - t0:.0f} s. Open {out_dir / 'diagnosis' / 'diagnosis.html'} in a browser.")
+    print(f"Next (after `source .venv/bin/activate`): rig diagnose {out_dir / 'perpendicular-active-unknown.h5'}, "
+          "rig simulate --seed 7 mystery.h5, rig tui")
     return 0
 
 
