@@ -91,7 +91,23 @@ class CameraCalibration:
     depth_scale_m: float
 
 
-class RecordingWriter:
+class _OpenRecording:
+    """An open HDF5 recording (`self.file`), closed by `close()` or at the end of a `with` block."""
+
+    file: h5py.File
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.file.id.valid:
+            self.file.close()
+
+
+class RecordingWriter(_OpenRecording):
     """Write a recording stop by stop. Use as a context manager."""
 
     def __init__(self, path: str | Path, *, resume: bool = False):
@@ -107,16 +123,6 @@ class RecordingWriter:
             for label in self.incomplete_stops():
                 del self.file["stops"][label]
             self.file.flush()
-
-    def __enter__(self) -> "RecordingWriter":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        if self.file.id.valid:
-            self.file.close()
 
     # -- experiment --------------------------------------------------------------------------
     def start_experiment(self, *, protocol: str, params: dict[str, Any], camera: dict[str, Any],
@@ -211,7 +217,7 @@ def _check_format(f: h5py.File, path: Path) -> None:
         raise RecordingError(f"{path} has format version {ver}, newer than this rig reads ({FORMAT_VERSION}); upgrade rig")
 
 
-class Recording:
+class Recording(_OpenRecording):
     """A recording opened for reading. Stops are read one at a time, on demand."""
 
     REQUIRED_STOP = ("count", "mean_m", "m2_m2")
@@ -245,16 +251,6 @@ class Recording:
             baseline_m=float(cam["baseline_m"]),
             depth_scale_m=float(cam["depth_scale_m"]),
         )
-
-    def __enter__(self) -> "Recording":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        if self.file.id.valid:
-            self.file.close()
 
     @property
     def protocol(self) -> str:
