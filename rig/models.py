@@ -36,8 +36,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.special import gammaln
-from scipy.stats import chi2, norm
+from scipy.special import gammaln, ndtr
+from scipy.stats import chi2
 
 from .samples import PixelSamples
 
@@ -365,19 +365,24 @@ def _format_limit(pred: "Prediction", d: "ModelData") -> None:
     z_max = MAX_DEPTH_UNITS * d.depth_unit_m
     sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z_m**2
     a = (d.fb_px_m / z_max - d.fb_px_m / d.z_m) / sigma_d
-    if np.all(a < -8):
+    near = a > -8.0  # elsewhere the cut is more than 8 sigma away: nothing is lost
+    if not near.any():
         return
-    a = np.minimum(a, 8.0)
-    kept = norm.sf(a)
-    lam = norm.pdf(a) / np.maximum(kept, 1e-300)
-    pred.var_m2 = pred.var_m2 * np.maximum(1 + a * lam - lam**2, 1e-6)
-    pred.fill = (pred.fill if pred.fill is not None else 1.0) * kept
+    an = np.minimum(a[near], 8.0)
+    kept = ndtr(-an)
+    lam = np.exp(-0.5 * an * an) / SQRT_2PI / np.maximum(kept, 1e-300)
+    factor = np.ones_like(a)
+    factor[near] = np.maximum(1 + an * lam - lam**2, 1e-6)
+    pred.var_m2 = pred.var_m2 * factor
+    fill = np.ones_like(a)
+    fill[near] = kept
+    pred.fill = (pred.fill if pred.fill is not None else 1.0) * fill
 
 
 def truncated_normal_moments(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For N(0,1) truncated to [-c, c]: (fraction kept, E[x^2], E[x^4])."""
-    kept = np.maximum(2 * norm.cdf(c) - 1, 1e-300)
-    phi = norm.pdf(c)
+    kept = np.maximum(2 * ndtr(c) - 1, 1e-300)
+    phi = np.exp(-0.5 * c * c) / SQRT_2PI
     m2 = 1 - 2 * c * phi / kept
     m4 = 3 - 2 * phi * (c**3 + 3 * c) / kept
     return kept, m2, m4
@@ -432,6 +437,7 @@ class Quantization(Effect):
 
 #: the largest value a uint16 depth image holds; 0 means no data
 MAX_DEPTH_UNITS = 65535
+SQRT_2PI = math.sqrt(2 * math.pi)
 
 
 class Outliers(Effect):
