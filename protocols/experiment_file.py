@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import inspect
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,3 +76,48 @@ def load_experiment(path: str | Path) -> Experiment:
     if output is not None and not output.is_absolute():
         output = path.parent / output
     return Experiment(plan, exp.get("camera", "fake:"), exp.get("stage", "fake:" if plan.name == "perpendicular" else "none:"), output, path)
+
+
+def experiment_text(protocol: str, params: dict[str, Any], camera: str, stage: str, output: str | Path,
+                    where: Path | None = None, header: str = "Run: rig run THIS-FILE.toml") -> str:
+    """The TOML text of an experiment file that `load_experiment` reads back to the same plan.
+
+    `output` is written relative to the file's folder (`where` is the file's path) when it can be.
+    """
+    build_plan(protocol, params)  # refuse to write a file `rig run` would refuse
+    out = Path(output)
+    if where is not None and not out.is_absolute():
+        out = Path(os.path.relpath(out.resolve(), where.resolve().parent))
+    lines = [f"# {header}", "[experiment]", f"protocol = {toml_value(protocol)}", f"camera = {toml_value(camera)}",
+             f"stage = {toml_value(stage)}", f"output = {toml_value(out.as_posix())}", "", "[parameters]"]
+    lines += [f"{k} = {toml_value(v)}" for k, v in params.items()]
+    return "\n".join(lines) + "\n"
+
+
+def save_experiment(path: str | Path, protocol: str, params: dict[str, Any], camera: str, stage: str,
+                    output: str | Path, header: str = "Run: rig run THIS-FILE.toml") -> Path:
+    """Write an experiment file (see `experiment_text`)."""
+    path = Path(path)
+    text = experiment_text(protocol, params, camera, stage, output, path, header)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def toml_value(v: Any) -> str:
+    """One value as TOML: booleans, numbers, strings and lists of them."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if v != v:
+            return "nan"
+        if v in (float("inf"), float("-inf")):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    raise ExperimentFileError(f"cannot write {v!r} to an experiment file")

@@ -79,3 +79,19 @@ def test_demo_small(tmp_path, capsys):
     assert "perpendicular active" in text and "perpendicular passive" in text
     assert (tmp_path / "sigma-vs-range.png").stat().st_size > 20_000
     assert (tmp_path / "perpendicular-active.h5").exists() and (tmp_path / "perpendicular-passive.h5").exists()
+
+
+def test_saved_experiment_file_loads_back_to_the_same_plan(tmp_path, monkeypatch):
+    from protocols.experiment_file import load_experiment, save_experiment
+
+    monkeypatch.chdir(tmp_path)
+    params = {"stops_m": [0.5, 1.25], "frames_per_stop": 7, "projector_on": False, "exposure_us": 3300.0, "gain": 32.0}
+    path = save_experiment("sub/e.toml", "perpendicular", params, "fake:width=16,effects=noise_floor", "none:", "out/r.h5")
+    exp = load_experiment(path)
+    assert exp.plan.name == "perpendicular"
+    assert {k: exp.plan.params[k] for k in params} == params
+    assert exp.camera == "fake:width=16,effects=noise_floor" and exp.stage == "none:"
+    assert exp.output.resolve() == (tmp_path / "out" / "r.h5").resolve()
+    assert 'output = "../out/r.h5"' in path.read_text()  # relative to the file, so the folder can move
+    absolute = save_experiment("e2.toml", "tilted", {"frames": 3}, "fake:", "none:", tmp_path / "t.h5")
+    assert load_experiment(absolute).output == tmp_path / "t.h5"

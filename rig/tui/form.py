@@ -6,12 +6,11 @@ by `load_experiment`, so the TUI accepts and writes exactly what `rig run FILE.t
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from protocols.experiment_file import ExperimentFileError, build_plan, load_experiment
+from protocols.experiment_file import ExperimentFileError, build_plan, experiment_text, load_experiment, save_experiment
 from protocols.perpendicular import DEFAULT_STOPS_M
 from protocols.plan import Plan
 
@@ -90,22 +89,14 @@ class ExperimentSettings:
 
     def to_toml(self, camera: str, stage: str, where: Path | None = None) -> str:
         """The experiment file's text; `output` is written relative to the file's folder when it can be."""
-        self.plan()  # refuse to write a file `rig run` would refuse
-        output = Path(self.output)
-        if where is not None and not output.is_absolute():
-            output = Path(os.path.relpath(output.resolve(), where.resolve().parent))
-        lines = ["# Written by rig tui. Run: rig run THIS-FILE.toml", "[experiment]",
-                 f"protocol = {_toml(self.protocol)}", f"camera = {_toml(camera)}", f"stage = {_toml(stage)}",
-                 f"output = {_toml(output.as_posix())}", "", "[parameters]"]
-        lines += [f"{k} = {_toml(v)}" for k, v in self.params().items()]
-        return "\n".join(lines) + "\n"
+        self.plan()  # refuse to write a file `rig run` would refuse, with the form's own message
+        return experiment_text(self.protocol, self.params(), camera, stage, self.output, where,
+                               header="Written by rig tui. Run: rig run THIS-FILE.toml")
 
     def save(self, path: str | Path, camera: str, stage: str) -> Path:
-        path = Path(path)
-        text = self.to_toml(camera, stage, path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
-        return path
+        self.plan()
+        return save_experiment(path, self.protocol, self.params(), camera, stage, self.output,
+                               header="Written by rig tui. Run: rig run THIS-FILE.toml")
 
 
 def parse_stops(text: str) -> list[float]:
@@ -137,15 +128,3 @@ def _shorter(path: Path) -> str:
         return str(path)
 
 
-def _toml(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v) if v == v and v not in (float("inf"), float("-inf")) else ("nan" if v != v else ("inf" if v > 0 else "-inf"))
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    raise ExperimentFileError(f"cannot write {v!r} to an experiment file")
