@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from drivers.camera import CameraSettings  # noqa: E402
 from fakes.camera import FakeCamera  # noqa: E402
 from fakes.world import FakeWorld  # noqa: E402
-from rig.stats import PixelMomentAccumulator  # noqa: E402
+from protocols.stats import PixelMomentAccumulator  # noqa: E402
 
 
 def best_of(fn, frames: list[np.ndarray], repeats: int = 3) -> float:

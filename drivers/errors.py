@@ -11,3 +11,7 @@ class CameraError(DeviceError):
 
 class StageError(DeviceError):
     """The linear stage failed, refused a move, or is not where it was sent."""
+
+
+class FolderImportError(ValueError):
+    """A folder of frames cannot be imported; the one-line message names the file and the problem."""

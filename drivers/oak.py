@@ -33,9 +33,9 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, Intrinsics
-from drivers.errors import CameraError
-from rig.devices import DeviceSpec, register_camera
+from .camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, Intrinsics
+from .errors import CameraError
+from .registry import DeviceSpec
 
 INSTALL = "pip install 'depthai>=3,<4'"
 ISO_RANGE = (100, 1600)
@@ -390,6 +390,6 @@ class OakCamera(DepthCamera):
             raise CameraError(f"{self.name}: not open; use it as a context manager ('with camera:') or call open()")
 
 
-@register_camera("oak")
-def _oak_camera(spec: DeviceSpec, world: Any) -> DepthCamera:
+def open_oak(spec: DeviceSpec, context: dict[str, Any]) -> DepthCamera:
+    """Factory for `oak:...` (see drivers.registry)."""
     return OakCamera.from_spec(spec)

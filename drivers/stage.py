@@ -98,3 +98,8 @@ class NoStage(Stage):
 
     def position_m(self) -> float:
         return self._position_m
+
+
+def no_stage(spec: Any, context: dict[str, Any]) -> NoStage:
+    """Factory for `none:`: no stage; the distance is the one the experiment states (context "distance_m")."""
+    return NoStage(position_m=float(context.get("distance_m", float("nan"))))

@@ -16,14 +16,13 @@
 
 from __future__ import annotations
 
-import inspect
 import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from . import PROTOCOLS
+from .catalogue import PROTOCOLS, parameters
 from .plan import Plan
 
 
@@ -44,7 +43,7 @@ def build_plan(protocol: str, params: dict[str, Any], where: str = "") -> Plan:
     if protocol not in PROTOCOLS:
         raise ExperimentFileError(f"{where}unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
     fn = PROTOCOLS[protocol]
-    allowed = list(inspect.signature(fn).parameters)
+    allowed = parameters(protocol)
     unknown = [k for k in params if k not in allowed]
     if unknown:
         raise ExperimentFileError(f"{where}{protocol} has no parameter(s) {unknown}; it takes {allowed}")

@@ -6,13 +6,12 @@ with fixed camera settings.
 
 from __future__ import annotations
 
-from typing import Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from drivers.camera import CameraSettings
-
-from .plan import Capture, Configure, Home, Move, Plan, Settle, Step
+from .capture_settings import CaptureSettings
+from .plan import Configure, Home, Move, Plan, Settle, Step
 
 DEFAULT_STOPS_M = tuple(float(z) for z in np.round(np.arange(0.5, 3.0001, 0.25), 3))
 
@@ -21,33 +20,26 @@ def stop_label(z_m: float) -> str:
     return f"{z_m:.3f}m"
 
 
-def perpendicular(
-    stops_m: Sequence[float] = DEFAULT_STOPS_M,
-    frames_per_stop: int = 300,
-    projector_on: bool = True,
-    exposure_us: float = 8500.0,
-    gain: float = 16.0,
-    settle_s: float = 1.0,
-    ir: bool = True,
-    ambient_frames: int = 0,
-    keep_raw: bool = False,
-) -> Plan:
-    """Home, configure, then at each stop: move, settle, capture `frames_per_stop` frames."""
+def perpendicular(stops_m: Sequence[float] = DEFAULT_STOPS_M, frames_per_stop: int = 300, **capture: Any) -> Plan:
+    """Home, configure, then at each stop: move, settle, capture `frames_per_stop` frames.
+
+    `capture`: the capture settings by name (`protocols.capture_settings.CaptureSettings`:
+    projector_on, exposure_us, gain, settle_s, ir, ambient_frames, keep_raw).
+    """
+    settings = CaptureSettings.from_options("perpendicular", capture)
     stops = [float(z) for z in stops_m]
     if not stops:
         raise ValueError("perpendicular: no stops given; pass stops_m, e.g. [0.5, 0.75, 1.0]")
     if frames_per_stop < 2:
         raise ValueError(f"perpendicular: frames_per_stop={frames_per_stop}; at least 2 frames are needed for a variance")
-    settings = CameraSettings(projector_on=projector_on, exposure_us=exposure_us, gain=gain, auto_exposure=False)
-    params = dict(stops_m=stops, frames_per_stop=frames_per_stop, projector_on=projector_on, exposure_us=exposure_us,
-                  gain=gain, settle_s=settle_s, ir=ir, ambient_frames=ambient_frames, keep_raw=keep_raw)
+    params = dict(stops_m=stops, frames_per_stop=frames_per_stop, **settings.to_params())
 
     def steps() -> Iterator[Step]:
         yield Home()
-        yield Configure(settings)
+        yield Configure(settings.camera())
         for z in stops:
             yield Move(z)
-            yield Settle(settle_s)
-            yield Capture(stop_label(z), frames_per_stop, ir=ir, ambient_frames=ambient_frames, keep_raw=keep_raw)
+            yield Settle(settings.settle_s)
+            yield settings.capture(stop_label(z), frames_per_stop)
 
     return Plan("perpendicular", params, steps)

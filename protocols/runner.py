@@ -18,12 +18,12 @@ import numpy as np
 
 from drivers.camera import CameraSettings, DepthCamera, FrameMetadata
 from drivers.errors import CameraError, DeviceError
+from drivers.image_regions import center_box
 from drivers.stage import Stage
-from rig.recording import CameraCalibration, FrameSeries, RecordingError, RecordingWriter
-from rig.image_regions import center_box
-from rig.stats import MeanImageAccumulator, PixelMomentAccumulator
 
 from .plan import Capture, Configure, Home, Move, Plan, Settle
+from .recording import CameraCalibration, FrameSeries, RecordingError, RecordingWriter
+from .stats import MeanImageAccumulator, PixelMomentAccumulator
 
 #: frames right after a settings change that may still carry the old settings
 MAX_STALE_FRAMES = 30

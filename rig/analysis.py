@@ -1,13 +1,18 @@
-"""Fit a recording and summarise it: what `rig fit` and `rig demo` print."""
+"""Fit a recording with the paper's model and summarise it: what `rig fit` and `rig demo` print.
+
+    from rig.analysis import fit_recording
+    print(fit_recording("active.h5").fit.report())
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
-from .fit import BinnedSigma, PowerLawFit, fit_power_law, pooled_sigma, sigma_by_range
-from .recording import Recording
-from .samples import PixelSamples, load_samples
+from protocols.recording import Recording
+
+from .diagnosis.bins import BinnedSigma, pooled_sigma, sigma_by_range
+from .models import ModelData, ModelFit, fit_power_law, load_samples
 
 
 @dataclass
@@ -15,8 +20,8 @@ class RecordingFit:
     path: Path
     protocol: str
     projector_on: bool
-    samples: PixelSamples
-    fit: PowerLawFit
+    samples: ModelData  # every pixel with two or more samples (in the --z-min/--z-max window, if given)
+    fit: ModelFit  # the paper's power law
     measured: BinnedSigma  # per stop (perpendicular) or per 0.25 m window (tilted)
 
 
@@ -34,13 +39,3 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
     else:
         measured = sigma_by_range(samples)
     return RecordingFit(Path(path), protocol, projector, samples, fit, measured)
-
-
-def fit_table(rows: list[tuple[str, PowerLawFit]]) -> str:
-    """A plain table: one row per fit."""
-    head = f"{'experiment':<22} {'k [m^(1-λ)]':>13} {'± se':>9} {'λ':>8} {'± se':>7} {'samples':>14} {'range [m]':>12}"
-    lines = [head, "-" * len(head)]
-    for name, f in rows:
-        lines.append(f"{name:<22} {f.k:13.5g} {f.se_k:9.2g} {f.lam:8.4f} {f.se_lam:7.4f} {f.n_samples:14,d} "
-                     f"{f.z_min_m:5.2f}-{f.z_max_m:4.2f}")
-    return "\n".join(lines)

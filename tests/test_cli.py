@@ -41,7 +41,7 @@ def test_experiment_file_with_overrides(tmp_path, capsys):
     toml.write_text((ROOT / "examples" / "perpendicular-active.toml").read_text()
                     .replace('output = "perpendicular-active.h5"', 'output = "out/active.h5"'))
     assert main(["run", str(toml), "--frames", "4", "--stops", "0.5,1.0", "--camera", "fake:width=16"]) == 0
-    from rig.recording import Recording
+    from protocols.recording import Recording
 
     with Recording(tmp_path / "out" / "active.h5") as rec:
         assert rec.stop_labels() == ["0.500m", "1.000m"]

@@ -15,8 +15,8 @@ import h5py
 import pytest
 
 from rig.cli import main
-from rig.scenarios import CHOICES, HIDDEN
-from rig.validation import run_trial
+from rig.simulation.scenarios import CHOICES, HIDDEN
+from rig.simulation.validation import run_trial
 
 SEEDS = range(1000, 1010)
 

@@ -7,8 +7,9 @@ miscalibrated standard error is the estimator's.
 import numpy as np
 import pytest
 
-from rig.fit import fit_power_law, pooled_sigma
-from rig.samples import PixelSamples
+from rig.diagnosis import pooled_sigma
+from rig.models import ModelData as PixelSamples
+from rig.models import fit_power_law
 
 STOPS = np.arange(0.5, 3.001, 0.25)
 

@@ -14,8 +14,11 @@ from PIL import Image
 
 from rig.analysis import fit_recording
 from rig.cli import main as rig_main
-from rig.importer import MANIFEST_NAME, FolderImportError, import_folder, import_main
-from rig.recording import Recording
+from drivers.errors import FolderImportError
+from drivers.folder import MANIFEST_NAME
+from protocols.folder_import import import_folder
+from protocols.recording import Recording
+from rig.cli.acquire import import_main
 from simrig import record_perpendicular
 
 STOPS_M = [0.5, 1.0, 1.5, 2.0, 2.5]

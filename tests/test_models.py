@@ -3,11 +3,9 @@
 import numpy as np
 import pytest
 
-from rig.fit import fit_power_law
+from protocols.recording import Recording
 from rig.models import (EFFECTS, Model, ModelData, active, censoring, noise_floor, parse_model, passive, power_law,
-                        slant_range)
-from rig.samples import load_samples
-from rig.recording import Recording
+                        slant_range, fit_power_law, load_samples)
 from simrig import record_perpendicular
 
 

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import drivers.oak  # noqa: F401  (registers the camera kind 'oak'; needs no SDK)
 from drivers.camera import CameraSettings
 from drivers.errors import CameraError
 from protocols.runner import settings_mismatch

@@ -13,7 +13,9 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from rig.paper_windows import (
+from rig.cli.tools import paper_windows_main
+from rig.models import ModelData as PixelSamples
+from rig.simulation.paper_windows import (
     EDGE_M,
     NATIVE_WIDTH_PX,
     PAPER_LAMBDA,
@@ -21,11 +23,9 @@ from rig.paper_windows import (
     format_table,
     lambda_trend,
     paper_scenarios,
-    paper_windows_main,
     simulate_all,
     window_table,
 )
-from rig.samples import PixelSamples
 
 K_SIGMA = 3.0
 SEED = 11

@@ -13,14 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import drivers.realsense  # noqa: F401  (registers the camera kind 'realsense'; needs no SDK)
 from drivers.camera import CameraSettings
 from drivers.errors import CameraError, DeviceError
 from protocols import Runner, RunError, perpendicular
 from rig.analysis import fit_recording
 from rig.devices import open_devices
-from rig.recording import Recording
-from rig.stats import PixelMomentAccumulator
+from protocols.recording import Recording
+from protocols.stats import PixelMomentAccumulator
 from simrig import record_perpendicular
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -323,7 +322,7 @@ def test_unknown_option_is_refused_in_one_line():
 # -- rig devices, and the Depth Quality Tool's figures ------------------------------------------------
 
 def test_depth_quality_figures_of_a_known_tilted_plane():
-    from rig.depth_quality import depth_quality
+    from rig.camera_check.depth_quality import depth_quality
 
     fx = fy = 400.0
     h, w = 120, 200
@@ -352,20 +351,21 @@ def test_depth_quality_figures_of_a_known_tilted_plane():
 def test_rig_devices_lists_nothing_attached_in_one_plain_line_quickly(monkeypatch):
     import io
 
-    from rig import device_listing
+    from drivers import listing
+    from rig.cli.tools import devices_main
 
-    monkeypatch.setitem(device_listing.PROBES, "realsense", lambda: [])
-    monkeypatch.setitem(device_listing.PROBES, "oak", lambda: [])
-    monkeypatch.setitem(device_listing.PROBES, "serial", lambda: [])
+    monkeypatch.setitem(listing.PROBES, "realsense", lambda: [])
+    monkeypatch.setitem(listing.PROBES, "oak", lambda: [])
+    monkeypatch.setitem(listing.PROBES, "serial", lambda: [])
     out = io.StringIO()
-    assert device_listing.devices_main([], out=out) == 0
+    assert devices_main([], out=out) == 0
     assert out.getvalue().strip().splitlines()[-1].startswith("nothing is attached: no RealSense or OAK camera")
 
 
 def test_rig_devices_with_the_real_probes_answers_within_five_seconds():
     import io
 
-    from rig.device_listing import devices_main
+    from rig.cli.tools import devices_main
 
     out = io.StringIO()
     t0 = time.monotonic()
@@ -381,7 +381,8 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
     from serial.tools import list_ports
     from serial.tools.list_ports_common import ListPortInfo
 
-    from rig import device_listing
+    from drivers import listing
+    from rig.cli.tools import devices_main
 
     def port(dev, vid, pid, desc, manufacturer=None):
         p = ListPortInfo(dev)
@@ -392,10 +393,10 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
                                                                           "Zaber Technologies Inc."),
              port("/dev/ttyUSB2", 0x1234, 0x5678, "Some adapter"), port("/dev/ttyS0", None, None, "n/a")]
     monkeypatch.setattr(list_ports, "comports", lambda: ports)
-    monkeypatch.setitem(device_listing.PROBES, "realsense", lambda: [])
-    monkeypatch.setitem(device_listing.PROBES, "oak", lambda: [])
+    monkeypatch.setitem(listing.PROBES, "realsense", lambda: [])
+    monkeypatch.setitem(listing.PROBES, "oak", lambda: [])
     out = io.StringIO()
-    device_listing.devices_main([], out=out)
+    devices_main([], out=out)
     lines = out.getvalue().splitlines()
     acm = next(l for l in lines if "/dev/ttyACM0" in l)
     assert "USB 2341:0043" in acm and "likely grbl" in acm and "--stage grbl:///dev/ttyACM0" in acm
@@ -408,7 +409,7 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
 def test_rig_devices_check_on_the_fake_camera_reports_projector_on_and_off():
     import io
 
-    from rig.device_listing import devices_main
+    from rig.cli.tools import devices_main
 
     out = io.StringIO()
     assert devices_main(["--check", "fake:width=64,seed=2", "--seconds", "2"], out=out) == 0
@@ -425,7 +426,7 @@ def test_rig_devices_check_on_the_fake_camera_reports_projector_on_and_off():
 
 def test_projector_check_through_the_sdk_sees_the_pattern_come_and_go():
     from fakes.world import FakeWorld
-    from rig.device_listing import ProjectorCheck, capture_check, contrast_changed
+    from rig.camera_check.projector_check import ProjectorCheck, capture_check, contrast_changed
 
     sw = _software(FakeWorld.perpendicular(1.0), light="night")  # the projector is the only light
     with sw:

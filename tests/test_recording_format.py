@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rig.analysis import fit_recording
-from rig.recording import Recording, RecordingError
+from protocols.recording import Recording, RecordingError
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "data-format.md"
 

@@ -13,8 +13,8 @@ from fakes.world import FakeWorld
 from protocols import Runner, RunError, perpendicular, tilted
 from protocols.runner import ProgressEvent, RunControl
 from rig.devices import open_devices
-from rig.recording import Recording
-from rig.stats import PixelMomentAccumulator
+from protocols.recording import Recording
+from protocols.stats import PixelMomentAccumulator
 from simrig import record_perpendicular
 
 STOPS = [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]

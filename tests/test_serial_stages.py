@@ -9,10 +9,10 @@ import time
 import pytest
 
 from drivers.errors import StageError
-from drivers.serial_stages import GrblStage, ZaberStage
+from drivers.registry import DeviceSpec, factory
+from drivers.serial import GrblStage, ZaberStage
 from fakes.grbl_sim import GrblSim
 from fakes.zaber_sim import ZaberSim
-from rig.devices import DeviceSpec, _STAGES, _load_plugins
 
 FAST_SIM = {"speed_mm_s": 20000.0}
 FAST_DRIVER = {"settle_s": 0.0, "timeout_s": 0.3, "poll_s": 0.01}
@@ -163,20 +163,19 @@ def test_soft_limits_refuse_before_sending(homed):
 
 
 def test_device_strings_build_configured_drivers():
-    _load_plugins()
     spec = DeviceSpec.parse("grbl:///dev/ttyUSB0?baud=57600&offset_m=0.25&direction=-1&feed=1200&settle=0.5"
                             "&tolerance_mm=2&travel_mm=2500")
-    stage = _STAGES["grbl"](spec, None)
+    stage = factory("stage", "grbl")(spec, {})
     assert isinstance(stage, GrblStage)
     assert (stage.link.baud, stage.feed_mm_min, stage.settle_s, stage.tolerance_m) == (57600, 1200.0, 0.5, 0.002)
     assert stage.limits_m == pytest.approx((0.25 - 2.5, 0.25))
     assert stage.name == "grbl /dev/ttyUSB0"
-    zaber = _STAGES["zaber"](DeviceSpec.parse("zaber:///dev/ttyUSB1?microstep_um=0.047625&offset_m=0.5"), None)
+    zaber = factory("stage", "zaber")(DeviceSpec.parse("zaber:///dev/ttyUSB1?microstep_um=0.047625&offset_m=0.5"), {})
     assert isinstance(zaber, ZaberStage) and zaber.microstep_um == 0.047625
     with pytest.raises(StageError, match="direction must be 1 or -1"):
-        _STAGES["grbl"](DeviceSpec.parse("grbl:///dev/ttyUSB0?direction=2"), None)
+        factory("stage", "grbl")(DeviceSpec.parse("grbl:///dev/ttyUSB0?direction=2"), {})
     with pytest.raises(StageError, match="names no serial port.*rig stage-sim zaber"):
-        _STAGES["zaber"](DeviceSpec.parse("zaber:"), None)
+        factory("stage", "zaber")(DeviceSpec.parse("zaber:"), {})
 
 
 # --- ports ----------------------------------------------------------------------------------------------

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from rig.stats import PixelMomentAccumulator
+from protocols.stats import PixelMomentAccumulator
 
 
 def numpy_moments(frames: np.ndarray, scale: float):

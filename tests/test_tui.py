@@ -22,10 +22,10 @@ pytest.importorskip("textual_plotext", reason="rig tui needs textual-plotext")
 from textual.widgets import Input  # noqa: E402
 
 from protocols.experiment_file import load_experiment  # noqa: E402
-from rig.recording import Recording  # noqa: E402
-from rig.scenarios import hidden_scenario, record_scenario  # noqa: E402
+from protocols.recording import Recording  # noqa: E402
+from rig.diagnosis import Headline  # noqa: E402
+from rig.simulation.scenarios import hidden_scenario, record_scenario  # noqa: E402
 from rig.tui.app import RigApp  # noqa: E402
-from rig.metrics import Headline  # noqa: E402
 from rig.tui.form import ExperimentSettings  # noqa: E402
 from rig.tui.live import RunState  # noqa: E402
 from rig.tui.results_service import BinRow, CandidateRow, FitRow, HistoryEntry, ResultsSession  # noqa: E402

@@ -7,8 +7,6 @@ single-letter keys while a text field has the focus (esc leaves the field).
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -263,32 +261,3 @@ class RigApp(App):
         if m.state.status in ("done", "aborted") and Path(m.state.output).exists() and not self.results.busy:
             self.results.set_path(m.state.output)
         self.refresh_bindings()
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="rig tui", description="The lab operator's terminal UI: devices, experiment, run, results.")
-    p.add_argument("recording", nargs="?", help="a recording (.h5) to open on the Results screen")
-    p.add_argument("--camera", help=f"camera device string (default {DEFAULT_CAMERA}, or the experiment file's)")
-    p.add_argument("--stage", help=f"stage device string (default {DEFAULT_STAGE}, or the experiment file's)")
-    p.add_argument("--experiment", help="experiment file (TOML, as rig run takes) to load into the Experiment screen")
-    p.add_argument("--no-connect", action="store_true", help="do not connect the devices at start")
-    return p
-
-
-def tui_main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    camera, stage = args.camera or DEFAULT_CAMERA, args.stage or DEFAULT_STAGE
-    settings = None
-    if args.experiment:
-        from protocols.experiment_file import ExperimentFileError
-
-        try:
-            settings, file_camera, file_stage = ExperimentSettings.load(args.experiment)
-        except ExperimentFileError as e:
-            print(f"rig tui: error: {e}", file=sys.stderr)
-            return 2
-        camera, stage = args.camera or file_camera, args.stage or file_stage
-    app = RigApp(camera, stage, recording=args.recording, experiment=settings,
-                 experiment_file=args.experiment or "experiment.toml", connect=not args.no_connect)
-    app.run()
-    return 0

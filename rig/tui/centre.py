@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-from rig.image_regions import center_box
-from rig.stats import PixelMomentAccumulator
+from drivers.image_regions import center_box
+from protocols.stats import PixelMomentAccumulator
 
 
 class CentreStats:

@@ -22,7 +22,7 @@ from drivers.errors import DeviceError
 from protocols.experiment_file import ExperimentFileError
 from protocols.runner import ProgressEvent, RunControl, RunError, Runner, RunResult, settings_mismatch
 from rig.devices import open_devices
-from rig.recording import RecordingError
+from protocols.recording import RecordingError
 
 from .centre import CentreStats
 from .form import ExperimentSettings

@@ -8,7 +8,7 @@ from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.message import Message
 from textual.widgets import Input, Label, Static
 
-from rig.recording import RecordingError
+from protocols.recording import RecordingError
 
 from .results_service import ResultsSession
 from .widgets import BinTable, EffectList, FitTable, HeadlineChart, StatusLine

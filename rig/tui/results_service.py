@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.diagnose import Diagnosis, default_model, diagnose
-from rig.metrics import Headline
+from rig.diagnosis import Diagnosis, Headline, default_model, diagnose
 from rig.models import EFFECTS, Model, ModelData
 
 

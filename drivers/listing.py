@@ -1,0 +1,89 @@
+"""What is attached: RealSense and OAK cameras, and USB serial ports with the stage protocol they likely speak.
+
+Each probe runs in its own thread with a deadline, so a driver that hangs cannot stall the listing.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+from .errors import DeviceError
+
+LIST_DEADLINE_S = 4.0
+
+#: (vendor id, product id or None, likely stage protocol, what the adapter usually is)
+USB_SERIAL_HINTS = [
+    (0x2341, None, "grbl", "Arduino (GRBL controllers are usually Arduino-based)"),
+    (0x2A03, None, "grbl", "Arduino"),
+    (0x1A86, 0x7523, "grbl", "CH340 USB-serial (Arduino clones, CNC boards running GRBL)"),
+    (0x10C4, 0xEA60, "grbl", "CP210x USB-serial (CNC boards running GRBL)"),
+    (0x0403, None, "zaber or grbl", "FTDI USB-serial (Zaber controllers and some CNC boards)"),
+]
+
+
+# -- listing ------------------------------------------------------------------------------------
+
+def list_serial_ports() -> list[dict[str, str]]:
+    """USB serial ports with their ids and the stage protocol they most likely speak."""
+    from serial.tools import list_ports
+
+    out = []
+    for p in sorted(list_ports.comports(), key=lambda p: p.device):
+        if p.vid is None:  # a built-in port (/dev/ttyS*), not something plugged in
+            continue
+        text = " ".join(str(x) for x in (p.description, p.manufacturer, p.product) if x).lower()
+        protocol, what = "unknown", ""
+        if "zaber" in text:
+            protocol, what = "zaber", "Zaber controller"
+        else:
+            for vid, pid, proto, desc in USB_SERIAL_HINTS:
+                if p.vid == vid and (pid is None or p.pid == pid):
+                    protocol, what = proto, desc
+                    break
+        kind = protocol if protocol in ("grbl", "zaber") else "grbl"
+        out.append({"port": p.device, "description": p.description or "", "usb": f"{p.vid:04x}:{p.pid or 0:04x}",
+                    "serial": p.serial_number or "", "protocol": protocol, "adapter": what,
+                    "string": f"{kind}://{p.device}"})
+    return out
+
+
+def _realsense() -> list[dict[str, str]]:
+    from .realsense import list_realsense
+
+    return list_realsense()
+
+
+def _oak() -> list[dict[str, str]]:
+    from .oak import list_oak
+
+    return list_oak()
+
+
+PROBES: dict[str, Callable[[], list[dict[str, str]]]] = {"realsense": _realsense, "oak": _oak, "serial": list_serial_ports}
+
+
+def probe_all(deadline_s: float = LIST_DEADLINE_S) -> tuple[dict[str, list[dict[str, str]]], list[str]]:
+    """Run every probe at once; return what answered by the deadline, and one note per probe that did not."""
+    results: dict[str, list[dict[str, str]]] = {}
+    notes: dict[str, str] = {}
+
+    def run(name: str, probe: Callable[[], list[dict[str, str]]]) -> None:
+        try:
+            results[name] = probe()
+        except DeviceError as e:
+            notes[name] = str(e)
+        except Exception as e:  # a driver's own failure must not hide the other probes
+            notes[name] = f"{name}: the probe failed ({(str(e).splitlines() or [type(e).__name__])[0]})"
+
+    threads = [threading.Thread(target=run, args=(n, p), daemon=True) for n, p in PROBES.items()]
+    t0 = time.monotonic()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(max(0.0, deadline_s - (time.monotonic() - t0)))
+    for name in PROBES:
+        if name not in results and name not in notes:
+            notes[name] = f"{name}: no answer within {deadline_s:g} s (the SDK may be searching the network); skipped"
+    return results, [notes[n] for n in PROBES if n in notes]

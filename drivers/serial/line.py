@@ -1,0 +1,128 @@
+"""A serial port carrying lines of ASCII text, with port failures as one-line `StageError`s.
+
+Both serial stages (GRBL, Zaber) talk through it: open with the OS's reasons turned into
+fixes, write, read one line against a deadline, and refuse bytes that are not printable
+ASCII (a wrong baud rate or electrical noise).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import time
+
+import serial
+
+from ..errors import StageError
+
+CABLE = "check the USB cable and that the controller is powered"
+
+
+class GarbledReply(StageError):
+    """A reply that is not printable ASCII or not in the protocol (wrong baud, noise)."""
+
+
+class SerialLine:
+    """A serial port carrying lines of ASCII text; port failures become one-line StageErrors."""
+
+    def __init__(self, kind: str, path: str, baud: int, timeout_s: float):
+        self.kind, self.path, self.baud, self.timeout_s = kind, path, baud, timeout_s
+        self.name = f"{kind} {path}"
+        self._port: serial.Serial | None = None
+
+    def error(self, problem: str, fix: str) -> StageError:
+        return StageError(f"{self.name}: {problem}; {fix}")
+
+    def open(self) -> None:
+        try:
+            exclusive = True if os.name == "posix" else None
+            self._port = serial.Serial(self.path, self.baud, timeout=self.timeout_s, exclusive=exclusive)
+        except (serial.SerialException, OSError) as e:
+            raise self._open_error(e) from None
+
+    def _open_error(self, e: Exception) -> StageError:
+        code = getattr(e, "errno", None)
+        if code in (errno.ENOENT, errno.ENXIO, errno.ENODEV):
+            return self.error(
+                "no such serial port",
+                f"check the cable and `ls /dev/ttyUSB* /dev/ttyACM*`, or try without hardware: "
+                f"run `rig stage-sim {self.kind}` and use the port it prints",
+            )
+        if code in (errno.EACCES, errno.EPERM):
+            return self.error(
+                "permission denied opening the port",
+                "add yourself to the dialout group (`sudo usermod -aG dialout $USER`, then log in again)",
+            )
+        if code in (errno.EAGAIN, errno.EBUSY):
+            return self.error(
+                "port is in use by another program",
+                "close it (G-code sender, Zaber Launcher, screen, minicom, another rig run) and retry",
+            )
+        return self.error(f"cannot open the port ({one_line(e)})", "check the device path and the cable")
+
+    def close(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
+
+    def _require(self) -> serial.Serial:
+        if self._port is None:
+            raise self.error("port is not open", "open the stage (use it as a context manager) before using it")
+        return self._port
+
+    def _disconnected(self, doing: str, e: Exception) -> StageError:
+        self.close()
+        return self.error(f"port disconnected while {doing} ({one_line(e)})", f"{CABLE}")
+
+    def write(self, data: bytes, what: str) -> None:
+        port = self._require()
+        try:
+            port.write(data)
+        except (serial.SerialException, OSError) as e:
+            raise self._disconnected(f"sending {what}", e) from None
+
+    def discard_input(self) -> None:
+        port = self._require()
+        try:
+            port.reset_input_buffer()
+        except (serial.SerialException, OSError) as e:
+            raise self._disconnected("clearing the input", e) from None
+
+    def read_line(self, deadline_s: float, what: str) -> str | None:
+        """One line without its line end, or None if nothing arrived by deadline_s.
+        Raises on a partial line or bytes that are not printable ASCII."""
+        port = self._require()
+        try:
+            port.timeout = max(0.0, deadline_s - time.monotonic())
+            raw = port.read_until(b"\n")
+        except (serial.SerialException, OSError) as e:
+            raise self._disconnected(f"waiting for the reply to {what}", e) from None
+        if not raw:
+            return None
+        if not raw.endswith(b"\n"):
+            raise self.garbled(raw, what)
+        body = raw.rstrip(b"\r\n")
+        if any(b < 0x20 or b > 0x7E for b in body):
+            raise self.garbled(raw, what)
+        return body.decode("ascii")
+
+    def garbled(self, raw: bytes | str, what: str) -> StageError:
+        shown = raw if isinstance(raw, str) else raw[:60]
+        return GarbledReply(
+            f"{self.name}: garbled reply {shown!r} to {what}; check that baud={self.baud} matches the controller "
+            f"and that the cable is sound and away from motor wiring"
+        )
+
+    def no_reply(self, what: str, timeout_s: float) -> StageError:
+        return self.error(f"no reply to {what} within {timeout_s:.1f} s", f"{CABLE}")
+
+
+def one_line(e: Exception) -> str:
+    return " ".join(str(e).split())

@@ -1,0 +1,149 @@
+"""Commands that analyse a recording: `rig fit`, `rig compare`, `rig diagnose`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from .usage import UsageError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the analysis commands to the `rig` parser."""
+    p = sub.add_parser("fit", help="fit sigma_Z = k Z^lambda to a recording")
+    p.add_argument("recording")
+    p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
+    p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
+    p.add_argument("--plot", help="write a sigma-vs-range PNG here")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
+    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("compare", help="fit several models and show their errors side by side")
+    p.add_argument("recording")
+    p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
+    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("diagnose", help="where the model fails and which physical effect is most likely missing")
+    p.add_argument("recording")
+    p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
+    p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
+    p.set_defaults(func=cmd_diagnose)
+
+
+def _model_data(path: str, z_min: float | None = None, z_max: float | None = None):
+    from ..models import ModelData
+
+    d = ModelData.from_recording(path)
+    if z_min is not None or z_max is not None:
+        d = d.in_range(z_min or 0, z_max or float("inf"))
+    return d
+
+
+def _parse_model(text: str):
+    from ..models import parse_model
+
+    try:
+        return parse_model(text)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def power_law_json(fit) -> dict:
+    """`rig fit --json` of the paper's power law (keys as before the layout change)."""
+    return {"k": fit.k, "lam": fit.lam, "se_k": fit.se_k, "se_lam": fit.se_lam, "corr": fit.corr, "loglik": fit.loglik,
+            "n_pixels": fit.n_pixels, "n_samples": fit.n_samples, "dof": fit.dof, "z_min_m": fit.z_min_m,
+            "z_max_m": fit.z_max_m, "lam_fixed": fit.lam_fixed}
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from ..analysis import fit_recording
+
+    if args.model:
+        return _fit_model(args)
+    r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
+    if args.json:
+        print(json.dumps(power_law_json(r.fit), indent=2))
+    else:
+        from ..diagnosis import headline
+        from ..models import Model, power_law
+
+        mode = "projector on" if r.projector_on else "projector off"
+        print(f"{r.path}: {r.protocol}, {mode}")
+        print(r.fit.report())
+        d = r.samples.positive_variance()
+        print(f"    headline error: {headline(Model(power_law).fit(d), d)}")
+        print(f"    (what is missing? rig diagnose {args.recording})")
+    if args.plot:
+        from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
+
+        out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
+        print(f"plot: {out}")
+    return 0
+
+
+def _fit_model(args: argparse.Namespace) -> int:
+    from ..diagnosis import headline, held_out_nll
+
+    model = _parse_model(args.model)
+    d = _model_data(args.recording, args.z_min, args.z_max)
+    try:
+        f = model.fit(d)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    h = headline(f, d)
+    if args.json:
+        print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
+                          "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
+                          "within_noise": h.within_noise}, indent=2))
+        return 0
+    print(f.report())
+    print(f"    headline error: {h}")
+    if not args.no_held_out:
+        print(f"    held-out negative log-likelihood per degree of freedom: {held_out_nll(model, d, f):.6f}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from ..diagnosis import headline, held_out_nll
+
+    d = _model_data(args.recording)
+    models = [_parse_model(m) for m in args.models.split(",")]
+    rows = []
+    for m in models:
+        try:
+            f = m.fit(d)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f)))
+    base_bic = rows[0][1].bic
+    w = max(len(m.name) for m, *_ in rows) + 2
+    print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>13} {'dBIC':>12} {'held-out NLL/dof':>17}")
+    for m, f, h, nll in rows:
+        print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {('yes' if h.within_noise else 'no'):>13} "
+              f"{f.bic - base_bic:>12.1f} {'' if nll is None else f'{nll:.6f}':>17}")
+    best = min(rows, key=lambda r: r[1].bic)
+    print(f"\nLowest BIC: {best[0].name}; its headline error is {best[2]}.")
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from ..diagnosis import diagnose, render_text
+    from ..reports.diagnosis_html import write_html
+    from ..reports.diagnosis_plots import write_plots
+
+    d = _model_data(args.recording)
+    model = _parse_model(args.model) if args.model else None
+    try:
+        diag = diagnose(d, model, source=args.recording)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    print(render_text(diag))
+    out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
+    plots = write_plots(diag, out)
+    page = write_html(diag, plots, out)
+    print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
+    return 0

@@ -1,0 +1,166 @@
+"""Commands around the measurement: `rig devices`, `rig tui`, `rig paper-windows`,
+`rig validate-diagnosis`, `rig stage-sim`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import TextIO
+
+from .usage import UsageError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the tool commands to the `rig` parser."""
+    p = sub.add_parser("devices", help="list attached cameras and serial ports; --check CAMERA checks one",
+                       description="List attached cameras and serial ports, or check a camera.")
+    p.add_argument("--check", metavar="CAMERA", help="capture with the projector on and off, e.g. realsense: or fake:")
+    p.add_argument("--seconds", type=float, default=4.0, help="capture time for --check, split between on and off (default 4)")
+    p.add_argument("--exposure-us", type=float, default=8500.0, help="exposure for --check (default 8500 us)")
+    p.add_argument("--gain", type=float, help="gain for --check (default 16 on a RealSense, ISO 100 on an OAK)")
+    p.add_argument("--distance", type=float, help="true camera-to-wall distance in m, for the range error")
+    p.set_defaults(func=cmd_devices)
+
+    from ..tui.launch import add_arguments as add_tui_arguments
+
+    p = sub.add_parser("tui", help="the operator's terminal UI (docs/tui.md)",
+                       description="The lab operator's terminal UI: devices, experiment, run, results.")
+    add_tui_arguments(p)
+    p.set_defaults(func=cmd_tui)
+
+    p = sub.add_parser("paper-windows", help="the paper's k/lambda-per-window table on simulated data",
+                       description="Simulate the paper's window-by-window fits: does a noise floor or censoring "
+                                   "explain the fall of the active lambda towards 3 m?")
+    p.add_argument("--out", default="rig-output", help="folder for the recordings (default rig-output/)")
+    p.add_argument("--frames", type=int, default=100, help="frames per stop (default 100)")
+    p.add_argument("--width", type=int, default=106, help="simulated image width in px (default 106, 848/8)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the first scenario (default 0)")
+    p.set_defaults(func=cmd_paper_windows)
+
+    from ..simulation.scenarios import CHOICES
+
+    p = sub.add_parser("validate-diagnosis", help="blind test of rig diagnose on hidden-effect simulations",
+                       description="Does `rig diagnose` find effects nobody told it about? Records hidden-effect "
+                                   "scenarios, diagnoses each blind and tabulates the results.")
+    p.add_argument("--seeds", type=int, default=10, help="seeds per effect (default 10)")
+    p.add_argument("--first-seed", type=int, default=1000)
+    p.add_argument("--effects", default=",".join(CHOICES), help="comma-separated (default: all, and none)")
+    p.add_argument("--json", help="also write the trials here")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("stage-sim", help="run a simulated stage controller on a pseudo-terminal (grbl or zaber)",
+                       description="Run a simulated GRBL or Zaber stage controller on a pseudo-terminal until Ctrl-C.")
+    p.add_argument("kind", choices=("grbl", "zaber"), help="which controller to simulate")
+    p.add_argument("--travel-mm", type=float, default=3000.0, help="rail length (default 3000)")
+    p.add_argument("--speed-mm-s", type=float, default=250.0, help="carriage speed (default 250)")
+    p.add_argument("--no-soft-limits", action="store_true", help="grbl: run into the end switches (ALARM:1) instead")
+    p.add_argument("--no-homing", action="store_true", help="grbl: homing disabled ($22=0); start unlocked")
+    p.add_argument("--microstep-um", type=float, default=0.1905, help="zaber: microstep size (default 0.1905)")
+    p.add_argument("-v", "--verbose", action="store_true", help="print every command and reply")
+    p.set_defaults(func=cmd_stage_sim)
+
+
+# -- rig devices ---------------------------------------------------------------------------------
+
+def print_listing(out: TextIO) -> int:
+    from drivers.listing import probe_all
+
+    results, notes = probe_all()
+    cameras = results.get("realsense", []) + results.get("oak", [])
+    ports = results.get("serial", [])
+    print("cameras:", file=out)
+    for c in cameras:
+        print(f"  {c['kind']:<9} {c['model']:<32} id {c['serial']:<20} firmware {c['firmware']:<16} USB {c['usb']:<10} "
+              f"-> --camera {c['string']}", file=out)
+    if not cameras:
+        print("  none found", file=out)
+    print("serial ports:", file=out)
+    for p in ports:
+        adapter = f", {p['adapter']}" if p["adapter"] else ""
+        print(f"  {p['port']:<14} {p['description']:<30} USB {p['usb']} serial {p['serial'] or '-'}: likely "
+              f"{p['protocol']}{adapter} -> --stage {p['string']}", file=out)
+    if not ports:
+        print("  none found", file=out)
+    for n in notes:
+        print(f"note: {n}", file=out)
+    if not cameras and not ports:
+        print("nothing is attached: no RealSense or OAK camera and no USB serial port found; "
+              "simulate a rig with --camera fake: --stage fake:", file=out)
+    return 0
+
+
+def cmd_devices(args: argparse.Namespace, out: TextIO | None = None) -> int:
+    out = out or sys.stdout
+    if args.check is None:
+        return print_listing(out)
+    from ..camera_check.projector_check import run_check
+
+    return run_check(args.check, seconds=args.seconds, exposure_us=args.exposure_us, gain=args.gain,
+                     truth_m=args.distance, out=out)
+
+
+def devices_main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
+    """`rig devices ...` from Python, printing to `out`."""
+    from . import build_parser
+
+    return cmd_devices(build_parser().parse_args(["devices", *(argv or [])]), out)
+
+
+# -- rig tui -------------------------------------------------------------------------------------
+
+def cmd_tui(args: argparse.Namespace) -> int:
+    from ..tui.launch import run
+
+    return run(args)
+
+
+# -- rig paper-windows -----------------------------------------------------------------------------
+
+def cmd_paper_windows(args: argparse.Namespace) -> int:
+    from ..simulation.paper_windows import run_paper_windows
+
+    if args.frames < 2:
+        raise UsageError("--frames must be at least 2 (a variance needs two samples)")
+    if args.width < 8:
+        raise UsageError("--width must be at least 8 px")
+    t0 = time.monotonic()
+    print(run_paper_windows(args.out, frames=args.frames, width=args.width, seed=args.seed))
+    print(f"Done in {time.monotonic() - t0:.0f} s.", file=sys.stderr)
+    return 0
+
+
+def paper_windows_main(argv: list[str]) -> int:
+    """`rig paper-windows ...` from Python."""
+    from . import run_command
+
+    return run_command(["paper-windows", *argv])
+
+
+# -- rig validate-diagnosis --------------------------------------------------------------------------
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from ..simulation.validation import summary, validate
+
+    effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    with tempfile.TemporaryDirectory() as tmp:
+        trials = validate(effects, seeds, Path(tmp))
+    print()
+    print(summary(trials))
+    if args.json:
+        Path(args.json).write_text(json.dumps([asdict(t) for t in trials], indent=1))
+    return 0
+
+
+# -- rig stage-sim ---------------------------------------------------------------------------------
+
+def cmd_stage_sim(args: argparse.Namespace) -> int:
+    from fakes.stage_sim import serve
+
+    return serve(args.kind, verbose=args.verbose, travel_mm=args.travel_mm, speed_mm_s=args.speed_mm_s,
+                 soft_limits=not args.no_soft_limits, homing=not args.no_homing, microstep_um=args.microstep_um)

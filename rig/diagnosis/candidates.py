@@ -1,0 +1,60 @@
+"""Candidate effects, ranked by evidence: the drop in BIC and the likelihood-ratio p-value.
+
+An effect is significant when BIC falls by more than 10 (very strong evidence) and p < 0.001.
+Effects that fit the data about equally well (an improvement within 2 % of the best) cannot be
+told apart by the fit; among them the one with fewer free parameters is preferred, because it
+predicts the size of the effect from geometry or a measurement (the projector-off frames, the
+per-frame series, the depth unit) instead of fitting it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..models import EFFECTS, Effect, Model, ModelData, ModelFit, likelihood_ratio
+
+SIGNIFICANT_DBIC = -10.0
+SIGNIFICANT_P = 1e-3
+EQUIVALENT_FRACTION = 0.02
+
+
+@dataclass
+class Candidate:
+    effect: Effect
+    fit: ModelFit
+    dbic: float
+    lrt: float
+    df: int
+    p_value: float
+
+    @property
+    def significant(self) -> bool:
+        return self.dbic < SIGNIFICANT_DBIC and self.p_value < SIGNIFICANT_P
+
+
+def rank_candidates(model: Model, base: ModelFit, d: ModelData) -> list[Candidate]:
+    out = []
+    for name, e in EFFECTS.items():
+        if name in (x.name for x in model.effects) or e.applicable(d):
+            continue
+        m = model + e
+        try:
+            f = m.fit(d, start=base.values)
+        except ValueError:
+            continue
+        stat, df, p = likelihood_ratio(base, f)
+        out.append(Candidate(e, f, f.bic - base.bic, stat, df, p))
+    out.sort(key=lambda c: c.dbic)
+    return out
+
+
+def choose(candidates: list[Candidate]) -> tuple[Candidate | None, list[Candidate]]:
+    """The most likely missing effect and the candidates that fit about equally well."""
+    sig = [c for c in candidates if c.significant]
+    if not sig:
+        return None, []
+    top = sig[0].dbic
+    tol = max(-SIGNIFICANT_DBIC, EQUIVALENT_FRACTION * abs(top))
+    equivalent = [c for c in sig if c.dbic <= top + tol]
+    best = min(equivalent, key=lambda c: (c.fit.n_free, c.dbic))
+    return best, equivalent

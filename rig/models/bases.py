@@ -1,0 +1,41 @@
+"""The base models: sigma_Z = k * Z^lambda (paper, eq. error_prop_*), with lambda free or fixed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .composition import Component
+from .data import ModelData
+from .parameters import Param
+
+
+class Base(Component):
+    """sigma_Z = k * Z^lambda (paper, eq. error_prop_*); lambda free or fixed."""
+
+    role = "base"
+
+    def __init__(self, name: str, lam: float | None, doc: str):
+        self.name = name  # type: ignore[misc]
+        self.lam = lam
+        self.doc = doc
+        self.params = (  # type: ignore[misc]
+            Param("k", 0.002, 1e-9, 10.0, "m^(1-lambda)", "scale of the range error"),
+            Param("lambda", 3.0 if lam is None else lam, -2.0, 8.0, "", "exponent of range", vary=lam is None),
+        )
+
+    def shot(self, p: dict[str, float], d: ModelData) -> np.ndarray:
+        return p["k"] ** 2 * d.z_m ** (2 * p["lambda"])
+
+
+power_law = Base("power_law", None, "the paper's model: k and lambda free")
+passive = Base("passive", 2.0, "passive stereo: lambda fixed at 2 (constant light)")
+active = Base("active", 3.0, "active stereo: lambda fixed at 3 (projected light falls as 1/Z^2)")
+BASES = {b.name: b for b in (power_law, passive, active)}
+
+
+def fixed_lambda(lam: float) -> Base:
+    """The base with lambda fixed at `lam`: `active` for 3, `passive` for 2, else a power law of its own."""
+    for b in (active, passive):
+        if b.lam == lam:
+            return b
+    return Base(f"power_law(lambda={lam:g})", lam, f"the paper's model with lambda fixed at {lam:g}")

@@ -1,0 +1,258 @@
+"""The physical effects the paper's model leaves out: one catalogue, `EFFECTS`.
+
+Each effect says where it joins the prediction (`stage`, see `rig.models.prediction`), its
+parameters with units and bounds, the residual pattern it explains (`signature`) and what it
+means physically (`explanation`). They compose with a base model: `active + slant_range`.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from .composition import Component
+from .data import ModelData
+from .file_physics import MAX_DEPTH_UNITS, truncated_normal_moments
+from .parameters import Param
+from .prediction import EffectStage, Prediction
+
+
+class Effect(Component):
+    """A physical effect the base model leaves out.
+
+    stage: where it joins (see `EffectStage`); needs: the covariates it uses; signature: the residual
+    pattern it explains, in plain words; explanation: what it means physically.
+    """
+
+    role = "effect"
+    stage: ClassVar[EffectStage]
+    needs: ClassVar[tuple[str, ...]] = ()
+    signature: ClassVar[str] = ""
+    explanation: ClassVar[str] = ""
+
+    def applicable(self, d: ModelData) -> str | None:
+        """None if the effect can be fitted to these data, else why not (one line)."""
+        return None
+
+    def apply(self, pred: Prediction, p: dict[str, float], d: ModelData) -> None:
+        raise NotImplementedError
+
+    def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
+        """Starting values (may depend on the data and the base prediction)."""
+        return {q.name: q.value for q in self.params}
+
+
+def _need_projector(d: ModelData, what: str) -> str | None:
+    return None if d.projector_on.any() else f"{what} needs the projector on (it changes the projected light)"
+
+
+class NoiseFloor(Effect):
+    """Disparity noise independent of brightness (matcher / subpixel limit), added in quadrature.
+
+    var_Z += (Z^2 / (f b))^2 sigma_px^2 (eq. error_prop_unassisted): it grows as Z^2 in range.
+    """
+
+    name = "noise_floor"
+    stage = EffectStage.DISPARITY
+    params = (Param("sigma_px", 0.01, 0.0, 5.0, "px", "disparity noise floor (RMS)"),)
+    signature = "the measured error exceeds k Z^lambda most at short range, where the projected light is brightest"
+    explanation = "a noise floor in disparity that does not depend on brightness (the matcher's subpixel limit)"
+
+    def apply(self, pred, p, d):
+        pred.add(d.disparity_to_range(p["noise_floor.sigma_px"] ** 2))
+
+
+class ReadNoise(Effect):
+    """Sensor read noise, independent of light, added to the photon noise of the image.
+
+    var_shot *= 1 + r^2 / I with I the pattern's photo-electrons; with the projector on
+    I ~ 1 / (Z^2 h) (h: other illumination losses), so the term is ratio_at_1m * Z^2 * h.
+    """
+
+    name = "read_noise"
+    stage = EffectStage.IMAGE_NOISE
+    params = (Param("ratio_at_1m", 0.05, 0.0, 1e3, "1", "read-noise variance / pattern shot-noise variance at 1 m on axis"),)
+    signature = "the error grows faster than k Z^lambda at long range, where the projected light is faint"
+    explanation = "sensor read noise: noise that does not fall with the light, so its share grows as the pattern fades"
+
+    def applicable(self, d):
+        return _need_projector(d, "read_noise") or None
+
+    def apply(self, pred, p, d):
+        term = p["read_noise.ratio_at_1m"] * d.z_m**2 * pred.illum
+        pred.image_terms = pred.image_terms + np.where(d.projector_on, term, 0.0)
+
+
+class Ambient(Effect):
+    """Ambient light adds photon noise but no pattern contrast: var_shot *= 1 + A / P.
+
+    A / P (ambient over pattern brightness) is measured per pixel from the frames captured with
+    the projector off; no free parameter.
+    """
+
+    name = "ambient"
+    stage = EffectStage.IMAGE_NOISE
+    needs = ("ambient_ratio",)
+    signature = "the error is larger where the ambient light (measured with the projector off) is strong against the pattern"
+    explanation = "ambient light: it adds photon noise to the image but no pattern contrast to match on"
+
+    def applicable(self, d):
+        if not np.isfinite(d.ambient_ratio).any():
+            return "ambient needs frames with the projector off at each stop (capture them with ambient_frames > 0)"
+        return _need_projector(d, "ambient")
+
+    def apply(self, pred, p, d):
+        r = np.where(np.isfinite(d.ambient_ratio) & d.projector_on, d.ambient_ratio, 0.0)
+        pred.image_terms = pred.image_terms + r
+
+
+class SlantRange(Effect):
+    """The projected light falls with the slant range r along each ray, not with Z.
+
+    I ~ 1/r^2 = 1 / (Z^2 (1 + rho^2)), rho^2 = ((u-cx)/fx)^2 + ((v-cy)/fy)^2 (paper, "Further
+    effects"), so the shot variance is multiplied by 1 + rho^2. No free parameter.
+    """
+
+    name = "slant_range"
+    stage = EffectStage.ILLUMINATION
+    signature = "the error grows with distance from the image centre"
+    explanation = "the illumination falls with the slant range along each pixel's ray, not with Z"
+
+    def applicable(self, d):
+        return _need_projector(d, "slant_range")
+
+    def apply(self, pred, p, d):
+        pred.illum = pred.illum * np.where(d.projector_on, 1.0 + d.rho2, 1.0)
+
+
+class Incidence(Effect):
+    """A matte wall returns the projected light as cos(incidence): the shot variance is divided by it.
+
+    The angle is between each pixel's ray and the normal of a plane fitted to the stop's mean depth. No free parameter.
+    """
+
+    name = "incidence"
+    stage = EffectStage.ILLUMINATION
+    signature = "the error grows with the angle at which the rays meet the wall"
+    explanation = "the wall returns the projected light as the cosine of the incidence angle (a matte surface)"
+
+    def applicable(self, d):
+        return _need_projector(d, "incidence")
+
+    def apply(self, pred, p, d):
+        pred.illum = pred.illum * np.where(d.projector_on, 1.0 / np.clip(d.cos_inc, 0.05, 1.0), 1.0)
+
+
+class Drift(Effect):
+    """The mean depth wanders during a stop (warm-up): var += D, measured from the per-frame series. No free parameter."""
+
+    name = "drift"
+    stage = EffectStage.DRIFT
+    needs = ("drift_var_m2",)
+    signature = "the mean depth wanders during a stop: per-pixel variance exceeds the model by what the per-frame series moves"
+    explanation = "drift: the camera's depth scale changes during a stop (warm-up), adding the wander to every pixel's variance"
+
+    def applicable(self, d):
+        return None if (d.drift_var_m2 > 0).any() else "drift: the per-frame series shows no wander beyond noise"
+
+    def apply(self, pred, p, d):
+        pred.add(d.drift_var_m2)
+
+
+class Censoring(Effect):
+    """The camera invalidates matches with a large matching error: the disparity error is truncated at +-threshold.
+
+    With c = threshold / sigma_d: var *= E[x^2 | |x| < c], fill = 2 Phi(c) - 1, and the
+    distribution becomes lighter-tailed (a truncated normal).
+    """
+
+    name = "censoring"
+    stage = EffectStage.CENSOR
+    params = (Param("threshold_px", 0.3, 0.005, 20.0, "px", "largest disparity error the camera keeps"),)
+    signature = "the error grows slower than k Z^lambda at long range while the fill rate falls"
+    explanation = "censoring: the camera discards the matches it is least sure of, so at long range the worst samples are missing"
+
+    def start(self, d, pred):
+        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z_m**2
+        return {"threshold_px": float(2.0 * np.quantile(sigma_d, 0.95))}
+
+    def apply(self, pred, p, d):
+        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z_m**2
+        c = p["censoring.threshold_px"] / sigma_d
+        kept, m2, m4 = truncated_normal_moments(c)
+        var = pred.var_m2
+        k4_old = pred.k4_m4 if pred.k4_m4 is not None else 0.0
+        pred.var_m2 = var * m2
+        pred.k4_m4 = var**2 * (m4 - 3 * m2**2) + k4_old * m2**2
+        pred.fill = kept
+
+
+class Quantization(Effect):
+    """Rounding to the depth unit q (and to the matcher's disparity step, if given) adds q^2 / 12.
+
+    A uniform rounding error has fourth cumulant -q^4 / 120. The depth unit comes from the
+    recording, so there is no free parameter.
+    """
+
+    name = "quantization"
+    stage = EffectStage.QUANTIZE
+    params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
+    signature = "the error levels off at short range near the size of the depth unit"
+    explanation = "quantization: depth is rounded to the depth unit (and disparity to the matcher's step), adding q^2/12"
+
+    def apply(self, pred, p, d):
+        q2 = d.depth_unit_m**2
+        step2 = d.disparity_to_range(p.get("quantization.step_px", 0.0) ** 2)
+        pred.add(q2 / 12 + step2 / 12, -(q2**2) / 120 - step2**2 / 120)
+
+
+class Outliers(Effect):
+    """Mismatches: a fraction of samples is uniform within +-width_px of the true disparity (Gaussian + uniform mixture).
+
+    An outlier's range is Z_o = f b / (d0 + u), u uniform on [-w, w], d0 = f b / Z, so exactly
+    E[Z_o] = f b ln((d0 + w) / (d0 - w)) / (2 w) and E[Z_o^2] = (f b)^2 / (d0^2 - w^2) (eq. dist_to_disp).
+    Mixture about its mean: var = (1 - f) (var0 + (Z - m)^2) + f (var_o + (E[Z_o] - m)^2),
+    m = (1 - f) Z + f E[Z_o]. The fourth moment uses the linearised outlier spread a = w Z^2 / (f b):
+    E[x^4] = (1 - f) (3 var0^2 + k4) + f a^4 / 5, scaled to the exact variance. Outliers beyond
+    the deepest range the depth format can hold (65535 depth units) are missing, not recorded.
+    """
+
+    name = "outliers"
+    stage = EffectStage.OUTLIERS
+    params = (
+        Param("fraction", 0.005, 0.0, 0.5, "1", "fraction of samples that are mismatches"),
+        Param("width_px", 1.0, 0.01, 50.0, "px", "half-width of the mismatch distribution"),
+    )
+    signature = "the errors are heavy-tailed: pixel variances scatter more than a normal distribution allows (kurtosis above 3)"
+    explanation = "outliers: occasional mismatches far from the true disparity (the paper's kurtosis of 4-8)"
+
+    def apply(self, pred, p, d):
+        f, w = p["outliers.fraction"], p["outliers.width_px"]
+        fb, z = d.fb_px_m, d.z_m
+        d0 = fb / z
+        # mismatches beyond the deepest range the depth format holds (65535 units) read as no data
+        u_lo = np.maximum(-w, fb / (MAX_DEPTH_UNITS * d.depth_unit_m) - d0)
+        u_lo = np.minimum(u_lo, w - 1e-9)
+        span = w - u_lo
+        mean_o = fb * np.log((d0 + w) / (d0 + u_lo)) / span
+        var_o = fb**2 * (1 / (d0 + u_lo) - 1 / (d0 + w)) / span - mean_o**2
+        kept = span / (2 * w)
+        f_all = f
+        f = f_all * kept / (1 - f_all + f_all * kept)
+        pred.fill = (pred.fill if pred.fill is not None else 1.0) * (1 - f_all + f_all * kept)
+        w_eff = span / 2
+        m = (1 - f) * z + f * mean_o
+        var0 = pred.var_m2
+        var = (1 - f) * (var0 + (z - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
+        a2 = d.disparity_to_range(w_eff**2)
+        k40 = pred.k4_m4 if pred.k4_m4 is not None else 0.0
+        m4_lin = (1 - f) * (3 * var0**2 + k40) + f * a2**2 / 5
+        var_lin = (1 - f) * var0 + f * a2 / 3
+        pred.var_m2 = var
+        pred.k4_m4 = m4_lin * (var / var_lin) ** 2 - 3 * var**2
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    NoiseFloor(), ReadNoise(), Ambient(), SlantRange(), Incidence(), Outliers(), Quantization(), Drift(), Censoring())}
+noise_floor, read_noise, ambient, slant_range, incidence, outliers, quantization, drift, censoring = EFFECTS.values()

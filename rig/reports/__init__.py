@@ -1,0 +1,1 @@
+"""What people read: the sigma-vs-range plot, the diagnosis plots and HTML page, text tables."""

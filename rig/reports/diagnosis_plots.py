@@ -1,0 +1,107 @@
+"""The diagnosis as PNG plots: where the model fails, the candidate effects, and the error before and after."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..diagnosis import BinComparison, Diagnosis, compare_bins, range_bins  # noqa: E402
+
+
+def _ratio_panel(ax, b: BinComparison, xlabel: str, title: str) -> None:
+    ratio = np.exp(b.log_ratio)
+    band = 2 * b.se_log * ratio
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.fill_between(b.center, 1 - 2 * b.se_log, 1 + 2 * b.se_log, color="0.85", label="±2 s.e. (sampling noise)")
+    colors = np.where(b.flagged, "tab:red", "tab:blue")
+    ax.errorbar(b.center, ratio, yerr=band, fmt="none", ecolor="0.4", capsize=2)
+    ax.scatter(b.center, ratio, c=colors, zorder=3, s=18)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("σ measured / σ model")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+
+
+def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    r = diag.residuals
+    paths = []
+    fig, axes = plt.subplots(2, 3, figsize=(14, 8))
+    _ratio_panel(axes[0, 0], r.by_range, "Z [m]", "by range (0.25 m windows)")
+    _ratio_panel(axes[0, 1], r.by_radius, "ρ = radius / f", "by distance from the image centre")
+    if r.by_brightness is not None:
+        _ratio_panel(axes[0, 2], r.by_brightness, "IR brightness [DN]", "by brightness")
+    else:
+        axes[0, 2].set_axis_off()
+    if r.by_incidence is not None:
+        _ratio_panel(axes[1, 0], r.by_incidence, "incidence angle [deg]", "by incidence angle")
+    else:
+        axes[1, 0].text(0.5, 0.5, "one incidence angle only\n(perpendicular wall, on axis)", ha="center", va="center")
+        axes[1, 0].set_axis_off()
+    b = r.by_range
+    ax = axes[1, 1]
+    ax.errorbar(b.center, b.kurt_meas, yerr=2 * b.se_kurt, fmt="o", ms=4, capsize=2, label="measured")
+    ax.plot(b.center, b.kurt_pred, "-", color="tab:orange", label=f"model ({diag.model_fit.model.name})")
+    ax.axhline(3, color="k", lw=0.8, ls=":")
+    ax.set_xlabel("Z [m]")
+    ax.set_ylabel("kurtosis")
+    ax.set_title("kurtosis by range (normal = 3)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    ax = axes[1, 2]
+    lim = np.nanmax(np.abs(r.image_map)) if np.isfinite(r.image_map).any() else 0.1
+    im = ax.imshow(100 * r.image_map, cmap="RdBu_r", vmin=-100 * lim, vmax=100 * lim)
+    fig.colorbar(im, ax=ax, label="ln(σ measured / σ model) [%]")
+    ax.set_title("by position in the image (all stops)")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    fig.suptitle(f"Where {diag.model_fit.model.name} fails: red points are off by more than 3 standard errors")
+    fig.tight_layout()
+    p = out / "diagnosis-residuals.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    paths.append(p)
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    cands = diag.candidates
+    names = [c.effect.name for c in cands]
+    vals = [max(-c.dbic, 0.1) for c in cands]
+    colors = ["tab:green" if (diag.best is not None and c is diag.best) else ("tab:blue" if c.significant else "0.7")
+              for c in cands]
+    ax.barh(names[::-1], vals[::-1], color=colors[::-1])
+    ax.set_xscale("log")
+    ax.axvline(10, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("evidence: BIC drop when the effect is added (log scale; dotted: significance)")
+    ax.set_title("Candidate effects")
+    fig.tight_layout()
+    p = out / "diagnosis-candidates.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    paths.append(p)
+
+    if diag.best is not None:
+        d = diag.data
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        for fit, color in ((diag.model_fit, "tab:red"), (diag.best.fit, "tab:green")):
+            bb = compare_bins(d, fit.predict(d), range_bins(d.z_m)[0], d.z_m)
+            ax.errorbar(bb.center, 100 * bb.log_ratio, yerr=200 * bb.se_log, fmt="o-", ms=4, capsize=2, color=color,
+                        label=f"{fit.model.name}")
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xlabel("Z [m]")
+        ax.set_ylabel("ln(σ measured / σ model) [%]")
+        ax.set_title(f"Adding {diag.best.effect.name}: headline error {diag.model_headline.error_pct:.2f} % → "
+                     f"{diag.refit_headline.error_pct:.2f} %")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        p = out / "diagnosis-before-after.png"
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        paths.append(p)
+    return paths

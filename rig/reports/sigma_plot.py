@@ -1,0 +1,62 @@
+"""The sigma-vs-range plot (like the paper's Fig. 1), as a PNG (matplotlib, no display needed)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+import matplotlib.ticker
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..diagnosis.bins import BinnedSigma  # noqa: E402
+from ..models import ModelFit  # noqa: E402
+
+
+@dataclass
+class SigmaSeries:
+    """One experiment on the sigma-vs-range plot: measured per stop and its fitted curve."""
+
+    label: str
+    measured: BinnedSigma
+    fit: ModelFit
+    color: str
+
+
+def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str = "Range error against range") -> Path:
+    """Like the paper's Fig. 1: sigma_Z against Z, measured with error bars and fitted curves.
+
+    Left: linear axes, as in the paper. Right: log-log axes, where a power law is a straight
+    line of slope lambda.
+    """
+    path = Path(path)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    for ax, loglog in zip(axes, (False, True)):
+        for s in series:
+            m = s.measured
+            ax.errorbar(m.z_m, 1000 * m.sigma_m, yerr=1000 * 2 * m.se_sigma_m, fmt="o", ms=4, color=s.color,
+                        capsize=3, label=f"{s.label}: measured (±2 s.e.)")
+            z = np.linspace(min(m.z_m.min(), s.fit.z_min_m) * 0.95, max(m.z_m.max(), s.fit.z_max_m) * 1.03, 200)
+            ax.plot(z, 1000 * s.fit.sigma_m(z), "-", color=s.color,
+                    label=f"{s.label}: fit k={s.fit.k:.3g}, λ={s.fit.lam:.4f}±{s.fit.se_lam:.1g}")
+        ax.set_xlabel("Z [m]")
+        ax.set_ylabel("σ_Z [mm]")
+        ax.grid(True, which="both", alpha=0.3)
+        if loglog:
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            for axis in (ax.xaxis, ax.yaxis):
+                axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+                axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+            ax.set_title("log-log: slope = λ")
+        else:
+            ax.set_title(title)
+            ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
