@@ -18,7 +18,7 @@ from drivers.errors import FolderImportError
 from drivers.folder import MANIFEST_NAME
 from protocols.folder_import import import_folder
 from protocols.recording import Recording
-from rig.cli.acquire import import_main
+from rig.cli import import_main
 from simrig import record_perpendicular
 
 STOPS_M = [0.5, 1.0, 1.5, 2.0, 2.5]

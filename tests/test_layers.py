@@ -25,3 +25,18 @@ def test_no_module_is_a_dumping_ground():
     assert len(sizes) > 60
     too_big = {p: n for p, n in sizes.items() if n > MAX_MODULE_LINES}
     assert not too_big, f"split these modules by concept (docs/architecture.md): {too_big}"
+
+
+def test_the_module_import_graph_has_no_cycle():
+    """Stricter than the contracts: no module reaches itself through imports, parents and children included
+    (imports under `if TYPE_CHECKING:` do not run and are left out). grimp is import-linter's graph builder."""
+    import grimp
+
+    g = grimp.build_graph(*PACKAGES, exclude_type_checking_imports=True)
+    cycles = []
+    for m in sorted(g.modules):
+        for imported in g.find_modules_directly_imported_by(m):
+            if g.find_shortest_chain(importer=imported, imported=m):
+                cycles.append((m, imported))
+    assert len(g.modules) > 60
+    assert not cycles, f"import cycles through these edges: {cycles[:10]}"

@@ -13,7 +13,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from rig.cli.tools import paper_windows_main
+from rig.cli import paper_windows_main
 from rig.models import ModelData as PixelSamples
 from rig.simulation.paper_windows import (
     EDGE_M,

@@ -352,7 +352,7 @@ def test_rig_devices_lists_nothing_attached_in_one_plain_line_quickly(monkeypatc
     import io
 
     from drivers import listing
-    from rig.cli.tools import devices_main
+    from rig.cli import devices_main
 
     monkeypatch.setitem(listing.PROBES, "realsense", lambda: [])
     monkeypatch.setitem(listing.PROBES, "oak", lambda: [])
@@ -365,7 +365,7 @@ def test_rig_devices_lists_nothing_attached_in_one_plain_line_quickly(monkeypatc
 def test_rig_devices_with_the_real_probes_answers_within_five_seconds():
     import io
 
-    from rig.cli.tools import devices_main
+    from rig.cli import devices_main
 
     out = io.StringIO()
     t0 = time.monotonic()
@@ -382,7 +382,7 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
     from serial.tools.list_ports_common import ListPortInfo
 
     from drivers import listing
-    from rig.cli.tools import devices_main
+    from rig.cli import devices_main
 
     def port(dev, vid, pid, desc, manufacturer=None):
         p = ListPortInfo(dev)
@@ -409,7 +409,7 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
 def test_rig_devices_check_on_the_fake_camera_reports_projector_on_and_off():
     import io
 
-    from rig.cli.tools import devices_main
+    from rig.cli import devices_main
 
     out = io.StringIO()
     assert devices_main(["--check", "fake:width=64,seed=2", "--seconds", "2"], out=out) == 0

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TextIO
 
 from drivers.errors import DeviceError, FolderImportError
 
 from . import acquire, analyse, tools
 from .usage import UsageError
 
-__all__ = ["main", "build_parser", "run_command", "UsageError"]
+__all__ = ["main", "build_parser", "run_command", "UsageError", "import_main", "devices_main", "paper_windows_main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,6 +33,21 @@ def run_command(argv: list[str]) -> int:
     """Parse `argv` with the `rig` parser and run the command; errors propagate (for callers in Python)."""
     args = build_parser().parse_args(argv)
     return int(args.func(args) or 0)
+
+
+def import_main(argv: list[str]) -> int:
+    """`rig import DIR -o OUT.h5 [--fx ...]` from Python; raises FolderImportError on bad input."""
+    return run_command(["import", *argv])
+
+
+def devices_main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
+    """`rig devices ...` from Python, printing to `out`."""
+    return tools.cmd_devices(build_parser().parse_args(["devices", *(argv or [])]), out)
+
+
+def paper_windows_main(argv: list[str]) -> int:
+    """`rig paper-windows ...` from Python."""
+    return run_command(["paper-windows", *argv])
 
 
 def main(argv: list[str] | None = None) -> int:

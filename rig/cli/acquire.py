@@ -151,9 +151,3 @@ def cmd_import(args: argparse.Namespace) -> int:
     print(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})")
     return 0
 
-
-def import_main(argv: list[str]) -> int:
-    """`rig import DIR -o OUT.h5 [--fx ...]` from Python; raises FolderImportError on bad input."""
-    from . import run_command
-
-    return run_command(["import", *argv])

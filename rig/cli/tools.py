@@ -104,13 +104,6 @@ def cmd_devices(args: argparse.Namespace, out: TextIO | None = None) -> int:
                      truth_m=args.distance, out=out)
 
 
-def devices_main(argv: list[str] | None = None, out: TextIO | None = None) -> int:
-    """`rig devices ...` from Python, printing to `out`."""
-    from . import build_parser
-
-    return cmd_devices(build_parser().parse_args(["devices", *(argv or [])]), out)
-
-
 # -- rig tui -------------------------------------------------------------------------------------
 
 def cmd_tui(args: argparse.Namespace) -> int:
@@ -132,13 +125,6 @@ def cmd_paper_windows(args: argparse.Namespace) -> int:
     print(run_paper_windows(args.out, frames=args.frames, width=args.width, seed=args.seed))
     print(f"Done in {time.monotonic() - t0:.0f} s.", file=sys.stderr)
     return 0
-
-
-def paper_windows_main(argv: list[str]) -> int:
-    """`rig paper-windows ...` from Python."""
-    from . import run_command
-
-    return run_command(["paper-windows", *argv])
 
 
 # -- rig validate-diagnosis --------------------------------------------------------------------------
