@@ -63,7 +63,7 @@ class DeviceSpec:
             path = (parts.netloc + parts.path) if parts.netloc else parts.path
             return cls(kind, path, dict(parse_qsl(parts.query)), text)
         options: dict[str, str] = {}
-        for item in filter(None, (p.strip() for p in rest.replace("&", ",").split(","))):
+        for item in filter(None, (p.strip() for p in _split_options(rest))):
             if "=" not in item:
                 raise DeviceError(f"device string {text!r}: option {item!r} is not KEY=VALUE; write e.g. 'fake:width=424'")
             key, value = item.split("=", 1)
@@ -83,6 +83,23 @@ class DeviceSpec:
             return typ(self.options[key])
         except ValueError:
             raise DeviceError(f"device {self.text!r}: {key}={self.options[key]!r} is not a {typ.__name__}") from None
+
+
+def _split_options(text: str) -> list[str]:
+    """Split at commas and ampersands outside parentheses: `effects=outliers(fraction=0.01,width_px=1),seed=2`."""
+    items, depth, current = [], 0, []
+    for ch in text:
+        if ch in "(":
+            depth += 1
+        elif ch == ")":
+            depth = max(depth - 1, 0)
+        if ch in ",&" and depth == 0:
+            items.append("".join(current))
+            current = []
+        else:
+            current.append(ch)
+    items.append("".join(current))
+    return items
 
 
 Factory = Callable[[DeviceSpec, dict[str, Any]], Any]

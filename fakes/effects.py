@@ -199,3 +199,116 @@ class Censoring(Effect):
 
     def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
         valid &= np.abs(d_px - ctx.field.d_true_px) <= self.threshold_px * ctx.field.px_scale
+
+
+# --- effects the model catalogue does not have (for the open-world blind test) -----------------------
+
+
+@register
+@dataclass
+class BeamFalloff(Effect):
+    """The projector's beam is brightest on its axis and falls off as cos^n of the off-axis angle.
+
+    The off-axis angle of a pixel's ray is atan(sqrt(xn^2 + yn^2)); the pattern's irradiance is
+    multiplied by cos(angle)^n (a lens-vignetted or diffuser-shaped emitter). Projector on only.
+    """
+
+    name: ClassVar[str] = "beam_falloff"
+    n: float = 4.0
+
+    def illumination(self, f: StopField) -> None:
+        if f.projector_on:
+            off_axis = np.arctan(np.hypot(f.xn, f.yn))
+            f.signal_e = f.signal_e * np.cos(off_axis) ** self.n
+
+
+@register
+@dataclass
+class LightFalloff(Effect):
+    """The projected light falls as 1/r^p along each ray (r: slant range in m), not as 1/r^2.
+
+    A point source in free space gives p = 2; a source whose beam narrows or a medium that
+    absorbs gives p > 2. The base physics already has the pattern falling as 1/Z^2; this
+    replaces that with 1/r^p (equal at r = 1 m on the axis). Projector on only.
+    """
+
+    name: ClassVar[str] = "light_falloff"
+    p: float = 2.6
+
+    def illumination(self, f: StopField) -> None:
+        if f.projector_on:
+            f.signal_e = f.signal_e * f.z_m**2 / f.slant_m**self.p
+
+
+@register
+@dataclass
+class NoisyConfidence(Effect):
+    """The matcher drops a match when its confidence score is too low, and the score is itself noisy.
+
+    Each sample's score is its disparity error's size plus an independent error of RMS
+    score_noise_px; the match is kept while that sum stays below threshold_px (both native px).
+    """
+
+    name: ClassVar[str] = "noisy_confidence"
+    threshold_px: float = 0.25
+    score_noise_px: float = 0.1
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        scale = ctx.field.px_scale
+        score = np.abs(d_px - ctx.field.d_true_px) + ctx.rng.normal(0.0, self.score_noise_px * scale, d_px.shape)
+        valid &= score <= self.threshold_px * scale
+
+
+@register
+@dataclass
+class CorrelatedNoise(Effect):
+    """Disparity noise shared by neighbouring pixels (speckle, matching windows overlapping).
+
+    Each frame adds a fresh field of white noise blurred by a Gaussian of length_px, scaled so
+    every pixel's own RMS is sigma_px (both native px): the pixels' variances are those of a
+    noise floor, but neighbours move together, so the frame's mean depth wanders far more than
+    independent pixels would let it.
+    """
+
+    name: ClassVar[str] = "correlated_noise"
+    sigma_px: float = 0.05
+    length_px: float = 3.0
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        from scipy.ndimage import gaussian_filter
+
+        length = max(self.length_px * ctx.field.px_scale, 0.3)
+        white = ctx.rng.standard_normal(d_px.shape)
+        blurred = gaussian_filter(white, length, mode="wrap")
+        gain = _blur_gain(length)
+        d_px += (blurred * (self.sigma_px * ctx.field.px_scale / gain)).astype(d_px.dtype)
+
+
+def _blur_gain(length: float) -> float:
+    """RMS of unit white noise after a Gaussian blur of `length` px (from the kernel's own weights)."""
+    from scipy.ndimage import gaussian_filter
+
+    size = int(8 * length) + 9
+    delta = np.zeros((size, size))
+    delta[size // 2, size // 2] = 1.0
+    kernel = gaussian_filter(delta, length, mode="constant")
+    return float(np.sqrt(np.sum(kernel**2)))
+
+
+@register
+@dataclass
+class ScaleMixture(Effect):
+    """Heavy tails: a fraction of samples has its disparity error `factor` times wider than the rest.
+
+    A scale mixture of normals: the wide samples' spread grows with the noise itself, so the
+    variance stays a power law of range while the distribution's tails get heavier everywhere.
+    """
+
+    name: ClassVar[str] = "scale_mixture"
+    fraction: float = 0.08
+    factor: float = 3.5
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        wide = ctx.rng.random(d_px.shape) < self.fraction
+        d_true = ctx.field.d_true_px
+        d_px[wide] = d_true[wide] + (d_px[wide] - d_true[wide]) * np.float32(self.factor)

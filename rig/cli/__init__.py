@@ -55,10 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     from protocols.recording import RecordingError
     from protocols.runner import RunError
 
+    from ..models import EffectFileError
+
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         return run_command(argv)
-    except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError, FolderImportError) as e:
+    except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError, FolderImportError, EffectFileError) as e:
         print(f"rig: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

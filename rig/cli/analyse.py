@@ -19,19 +19,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    _add_effects_arg(p)
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("compare", help="fit several models and show their errors side by side")
     p.add_argument("recording")
     p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    _add_effects_arg(p)
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("diagnose", help="where the model fails and which physical effect is most likely missing")
     p.add_argument("recording")
     p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
     p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
+    _add_effects_arg(p)
     p.set_defaults(func=cmd_diagnose)
+
+
+def _add_effects_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
+                   help="load effects you wrote (a Python file using @effect; docs/effects.md); may be repeated")
+
+
+def catalogue_of(args: argparse.Namespace):
+    """The built-in effects, installed plugins' and those of every --effects file."""
+    from ..models import Catalogue
+
+    cat = Catalogue.default()
+    for path in getattr(args, "effects", []) or []:
+        cat = cat.with_file(path)
+    return cat
 
 
 def _model_data(path: str, z_min: float | None = None, z_max: float | None = None):
@@ -43,11 +61,11 @@ def _model_data(path: str, z_min: float | None = None, z_max: float | None = Non
     return d
 
 
-def _parse_model(text: str):
+def _parse_model(text: str, catalogue=None):
     from ..models import parse_model
 
     try:
-        return parse_model(text)
+        return parse_model(text, catalogue)
     except ValueError as e:
         raise UsageError(str(e)) from None
 
@@ -88,7 +106,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
 
-    model = _parse_model(args.model)
+    model = _parse_model(args.model, catalogue_of(args))
     d = _model_data(args.recording, args.z_min, args.z_max)
     try:
         f = model.fit(d)
@@ -111,7 +129,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
 
     d = _model_data(args.recording)
-    models = [_parse_model(m) for m in args.models.split(",")]
+    cat = catalogue_of(args)
+    models = [_parse_model(m, cat) for m in args.models.split(",")]
     rows = []
     for m in models:
         try:
@@ -135,15 +154,26 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..reports.diagnosis_html import write_html
     from ..reports.diagnosis_plots import write_plots
 
+    cat = catalogue_of(args)
+    out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
+    _check_writable(out)
     d = _model_data(args.recording)
-    model = _parse_model(args.model) if args.model else None
+    model = _parse_model(args.model, cat) if args.model else None
     try:
-        diag = diagnose(d, model, source=args.recording)
+        diag = diagnose(d, model, source=args.recording, catalogue=cat)
     except ValueError as e:
         raise UsageError(str(e)) from None
     print(render_text(diag))
-    out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
     plots = write_plots(diag, out)
     page = write_html(diag, plots, out)
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return 0
+
+
+def _check_writable(folder: Path) -> None:
+    """Refuse before the work, not after it, when the report cannot be written."""
+    probe = folder if folder.exists() else next((p for p in folder.parents if p.exists()), Path("."))
+    import os
+
+    if not os.access(probe, os.W_OK):
+        raise UsageError(f"cannot write the report to {folder} ({probe} is not writable); pass --out to a writable folder")

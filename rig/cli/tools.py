@@ -42,14 +42,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of the first scenario (default 0)")
     p.set_defaults(func=cmd_paper_windows)
 
-    from ..simulation.scenarios import CHOICES
+    from ..simulation.scenarios import ALL_SCENARIOS
 
     p = sub.add_parser("validate-diagnosis", help="blind test of rig diagnose on hidden-effect simulations",
                        description="Does `rig diagnose` find effects nobody told it about? Records hidden-effect "
                                    "scenarios, diagnoses each blind and tabulates the results.")
     p.add_argument("--seeds", type=int, default=10, help="seeds per effect (default 10)")
     p.add_argument("--first-seed", type=int, default=1000)
-    p.add_argument("--effects", default=",".join(CHOICES), help="comma-separated (default: all, and none)")
+    p.add_argument("--effects", default=",".join(ALL_SCENARIOS),
+                   help="comma-separated scenarios (default: all: none, each catalogue effect, a coarse depth unit, "
+                        "pairs, effects the catalogue lacks)")
+    p.add_argument("--jobs", type=int, help="trials at a time, in parallel processes (default: one per core)")
     p.add_argument("--json", help="also write the trials here")
     p.set_defaults(func=cmd_validate)
 
@@ -135,7 +138,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     with tempfile.TemporaryDirectory() as tmp:
-        trials = validate(effects, seeds, Path(tmp))
+        trials = validate(effects, seeds, Path(tmp), jobs=args.jobs)
     print()
     print(summary(trials))
     if args.json:

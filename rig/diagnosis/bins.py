@@ -1,7 +1,11 @@
-"""Measured sigma pooled in bins (by stop, range, radius, brightness, incidence), against a model's prediction.
+"""Measured sigma and kurtosis pooled in bins (by stop, range, radius, brightness, incidence), against a model.
 
 Within a bin the measured variance is pooled, sum M2 / sum (n - 1), and so is the predicted one
 (weighted by degrees of freedom); their ratio's sampling error uses the bin's measured kurtosis.
+
+Kurtosis: the bin's is the samples-weighted mean of its pixels' unbiased estimates
+(`ModelData.pixel_kurtosis`, standardised by what the neighbours measure, not by a model);
+its standard error comes from their scatter.
 """
 
 from __future__ import annotations
@@ -11,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models import ModelData, Prediction
+from ..models.data import RANGE_BIN_M, pooled_kurtosis, range_bin_index
 
-RANGE_BIN_M = 0.25
 RADIUS_EDGES = (0.0, 0.3, 0.6, np.inf)
 MIN_PIXELS_PER_BIN = 20
 
@@ -40,11 +44,13 @@ class BinComparison:
 
 def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: np.ndarray,
                  labels_of: dict[int, str] | None = None) -> BinComparison:
-    """Pool measured and predicted variance within each group (integer labels)."""
+    """Pool measured and predicted variance (and kurtosis) within each group (integer labels)."""
     nu, n = d.nu, d.n
     m2 = d.s2_m2 * nu
     var_p = pred.var_m2
     excess_p = (pred.k4_m4 / var_p**2) if pred.k4_m4 is not None else np.zeros(len(d))
+    beta = d.pixel_kurtosis
+    usable = d.kurtosis_usable
     out: dict[str, list] = {k: [] for k in ("labels", "center", "sm", "sp", "lr", "se", "km", "kp", "sk", "px")}
     for g in np.unique(groups):
         m = groups == g
@@ -53,16 +59,13 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
         W = nu[m].sum()
         var_meas = m2[m].sum() / W
         var_pred = (nu[m] * var_p[m]).sum() / W
-        # kurtosis of the samples about their pixel means, each pixel standardised by the model's
-        # variance (pixels of different sigma would otherwise inflate it), rescaled to the bin's measured variance
-        if np.isfinite(d.m4_m4[m]).any():
-            kurt = float(np.nansum(d.m4_m4[m] / var_p[m] ** 2) / n[m].sum() * (var_pred / var_meas) ** 2)
-            n_mean = float(n[m].mean())
-            kurt *= (n_mean + 1) / (n_mean - 1)  # about the sample mean, a normal's kurtosis reads 3 (n-1)/(n+1)
-        else:
-            kurt = np.nan
+        mk = m & usable
+        kurt, se_kurt = pooled_kurtosis(beta[mk], n[mk]) if mk.sum() >= MIN_PIXELS_PER_BIN else (np.nan, np.nan)
         excess = (kurt - 3) if np.isfinite(kurt) else 0.0
-        var_s2 = np.sum(nu[m] ** 2 * (2 / nu[m] + excess / n[m])) / W**2  # var(pooled s2) / var^2
+        # var(pooled variance) / pooled^2; pixels weighted by their predicted variance, so a bin that pools
+        # stops of very different sigma gets the few degrees of freedom that dominate it
+        weight = nu[m] * var_p[m]
+        var_s2 = np.sum(weight**2 * (2 / nu[m] + excess / n[m])) / np.sum(weight) ** 2
         out["labels"].append(labels_of.get(int(g), str(g)) if labels_of else str(g))
         out["center"].append(float((nu[m] * covariate[m]).sum() / W))
         out["sm"].append(np.sqrt(var_meas))
@@ -70,8 +73,8 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
         out["lr"].append(0.5 * np.log(var_meas / var_pred))
         out["se"].append(0.5 * np.sqrt(max(var_s2, 1e-30)))
         out["km"].append(kurt)
-        out["kp"].append(3 + float((nu[m] * excess_p[m]).sum() / W))
-        out["sk"].append(np.sqrt(24.0 / n[m].sum()) if np.isfinite(kurt) else np.nan)  # normal theory
+        out["kp"].append(3 + float((n[mk] * excess_p[mk]).sum() / max(n[mk].sum(), 1e-300)))
+        out["sk"].append(se_kurt)
         out["px"].append(int(m.sum()))
     a = {k: np.array(v) for k, v in out.items() if k != "labels"}
     return BinComparison(out["labels"], a["center"], a["sm"], a["sp"], a["lr"], a["se"], a["km"], a["kp"], a["sk"], a["px"])
@@ -79,7 +82,7 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
 
 def range_bins(z_m: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
     """0.25 m windows centred on multiples of 0.25 m, so a perpendicular stop falls in one window."""
-    b = np.round(z_m / RANGE_BIN_M).astype(np.int64)
+    b = range_bin_index(z_m)
     return b, {int(k): f"{(k - 0.5) * RANGE_BIN_M:.3f}-{(k + 0.5) * RANGE_BIN_M:.3f} m" for k in np.unique(b)}
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..models import EFFECTS, Effect, Model, ModelData, ModelFit, likelihood_ratio
+from ..models import Catalogue, Effect, EffectFileError, Model, ModelData, ModelFit, likelihood_ratio
 
 SIGNIFICANT_DBIC = -10.0
 SIGNIFICANT_P = 1e-3
@@ -32,14 +32,17 @@ class Candidate:
         return self.dbic < SIGNIFICANT_DBIC and self.p_value < SIGNIFICANT_P
 
 
-def rank_candidates(model: Model, base: ModelFit, d: ModelData) -> list[Candidate]:
+def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catalogue | None = None) -> list[Candidate]:
+    """Every applicable effect of the catalogue not yet in `model`, fitted with it, best (lowest BIC) first."""
     out = []
-    for name, e in EFFECTS.items():
-        if name in (x.name for x in model.effects) or e.applicable(d):
+    have = {x.name for x in model.effects}
+    for e in (catalogue or Catalogue.default()).candidates():
+        if e.name in have or e.applicable(d):
             continue
-        m = model + e
         try:
-            f = m.fit(d, start=base.values)
+            f = (model + e).fit(d, start=base.values, errors=False)  # errors only for the one chosen
+        except EffectFileError:
+            raise  # a user effect that cannot be evaluated: say so, do not skip it
         except ValueError:
             continue
         stat, df, p = likelihood_ratio(base, f)

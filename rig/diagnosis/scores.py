@@ -7,8 +7,10 @@ In each bin compare the measured sigma (pooled: sqrt(sum M2 / sum (n-1))) with t
     headline = RMS over bins of ln(sigma_measured / sigma_predicted), in percent.
 Sampling noise alone would give an RMS of the bins' standard errors (the "noise level"),
 se(ln sigma) = 0.5 * sqrt(sum nu^2 (2/nu + excess/n)) / sum nu, with the bin's measured
-kurtosis. The model is "within noise" when sum (ln ratio / se)^2 is consistent with a chi^2
-of (bins - free parameters) degrees of freedom (p >= 0.001).
+kurtosis. The headline bins are "within noise" when sum (ln ratio / se)^2 is consistent with a
+chi^2 of (bins - free parameters) degrees of freedom (p >= 0.001); the model is within noise
+when, beyond that, every other statistic it predicts is too (`rig.diagnosis.consistency`), and
+the headline names the worst one that is not.
 
 Held-out: leave one stop out (or, for a single-stop recording, one of four vertical strips
 of the image), fit on the rest, and score the left-out pixels; reported as negative
@@ -24,6 +26,8 @@ from scipy.stats import chi2
 
 from ..models import Model, ModelData, ModelFit
 from .bins import compare_bins, range_radius_groups
+from .consistency import ALPHA, Consistency
+from .residuals import residuals
 
 
 @dataclass
@@ -36,10 +40,33 @@ class Headline:
     dof: int
     p_value: float
     bins: int
+    consistency: Consistency | None = None
+
+    @property
+    def sigma_within_noise(self) -> bool:
+        """The headline bins (sigma by range and radius) agree within sampling noise: p >= ALPHA, or, with
+        the other checks, at the same family-wise threshold as each of them."""
+        return self.p_value >= (ALPHA if self.consistency is None else self.consistency.threshold_with(1))
 
     @property
     def within_noise(self) -> bool:
-        return self.p_value >= 1e-3
+        """Every statistic the model predicts agrees within its own error (the headline bins included)."""
+        return self.sigma_within_noise and (self.consistency is None or self.consistency.within_noise_with(1))
+
+    @property
+    def misfit(self) -> float:
+        """How far beyond noise, all statistics together: the chi^2 above its degrees of freedom, summed over
+        the headline bins and every other check."""
+        extra = sum(max(0.0, c.chi2 - c.dof) for c in self.consistency.checks) if self.consistency else 0.0
+        return max(0.0, self.chi2 - self.dof) + extra
+
+    def verdict(self) -> str:
+        if self.within_noise:
+            return "every statistic within noise" if self.consistency is not None else "within noise"
+        worst = self.consistency.worst(extra=1) if self.consistency is not None else None
+        if worst is None or (not self.sigma_within_noise and self.chi2 / self.dof > worst.chi2 / worst.dof):
+            return f"beyond noise; worst: sigma by range and radius, chi2 {self.chi2:.0f}/{self.dof}"
+        return f"beyond noise; worst: {worst.describe_worst()}"
 
     @property
     def excess_pct(self) -> float:
@@ -50,11 +77,11 @@ class Headline:
         return float(np.sqrt(max(self.error_pct**2 - self.noise_pct**2, 0.0)))
 
     def __str__(self) -> str:
-        verdict = "within noise" if self.within_noise else "beyond noise"
-        return f"{self.error_pct:.2f} % (noise alone: {self.noise_pct:.2f} %; {verdict}, chi2 {self.chi2:.0f}/{self.dof})"
+        return f"{self.error_pct:.2f} % (noise alone: {self.noise_pct:.2f} %; {self.verdict()})"
 
 
-def headline(fit: ModelFit, d: ModelData) -> Headline:
+def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
+    """The headline error of `fit`; with `checks`, also the verdict on every other statistic it predicts."""
     pred = fit.predict(d)
     groups, labels = range_radius_groups(d)
     b = compare_bins(d, pred, groups, d.z_m, labels)
@@ -64,6 +91,7 @@ def headline(fit: ModelFit, d: ModelData) -> Headline:
         error_pct=100 * float(np.sqrt(np.mean(b.log_ratio**2))),
         noise_pct=100 * float(np.sqrt(np.mean(b.se_log**2))),
         chi2=stat, dof=dof, p_value=float(chi2.sf(stat, dof)), bins=len(b.log_ratio),
+        consistency=residuals(fit, d, pred).consistency if checks else None,
     )
 
 
@@ -82,6 +110,6 @@ def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None) -> fl
         train_d, test_d = d.select(~test), d.select(test)
         f = model.fit(train_d, start=start)
         pred = model.predict(f.values, test_d)
-        total += -test_d.loglik(pred.var_m2, pred.k4_m4)
+        total += -test_d.loglik(pred.var_m2, pred.k4_m4, pred.fill)
         dof += test_d.nu.sum()
     return total / dof

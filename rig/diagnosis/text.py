@@ -15,7 +15,7 @@ def render_text(diag: Diagnosis) -> str:
              f"(for reference, the paper's free power law: lambda = {diag.power_law_fit.values['lambda']:.4f} "
              f"+/- {diag.power_law_fit.errors.get('lambda', float('nan')):.2g})", ""]
     r = diag.residuals
-    lines.append("Where it fails (measured / predicted sigma; * = off by more than 3 standard errors):")
+    lines.append(f"Where {diag.model_fit.model.name} fails (measured / predicted sigma; * = off by more than 3 standard errors):")
     for title, b in (("by range", r.by_range), ("by radius from the image centre", r.by_radius),
                      ("by IR brightness", r.by_brightness), ("by incidence angle", r.by_incidence)):
         if b is None:
@@ -29,21 +29,31 @@ def render_text(diag: Diagnosis) -> str:
         lines.append(f"    {lab:<24} {km:6.2f} / {kp:5.2f}  (+/- {2 * sk:.2f})")
     lines.append("  fill rate by stop (measured / model):")
     lines.append("    " + ", ".join(f"{s} {m:.3f}/{p:.3f}" for s, m, p in r.fill_by_stop))
+    lines += ["", "Every statistic it predicts, each against its own error (chi2 / bins, p; the verdict needs p >= "
+                  f"{r.consistency.threshold_with(1):.1e} for each):"]
+    for c in r.consistency.checks:
+        flag = "ok  " if c.p_value >= r.consistency.threshold_with(1) else "OFF "
+        lines.append(f"  {flag}{c.name:<26} {c.chi2:12.1f} / {c.dof:<3} p {c.p_value:.1e}   worst: {c.describe_worst()}")
     lines += ["", "Candidate effects, by evidence (BIC change; LRT statistic, df, p):"]
     for c in diag.candidates:
         mark = "significant" if c.significant else ""
-        lines.append(f"  {c.effect.name:<14} dBIC {c.dbic:12.1f}   LRT {c.lrt:12.1f} df {c.df}  p {c.p_value:.1e}  {mark}")
+        lines.append(f"  {c.effect.name:<16} dBIC {c.dbic:12.1f}   LRT {c.lrt:12.1f} df {c.df}  p {c.p_value:.1e}  {mark}")
+    lines += ["", "The path (each step adds the most likely missing effect while something is beyond noise):"]
+    for st in diag.steps:
+        change = "start" if st.added is None else f"+ {st.added.effect.name} (dBIC {st.added.dbic:.1f})"
+        lines.append(f"  {change:<36} {st.name:<48} headline {st.headline.error_pct:6.2f} %  "
+                     f"{'within noise' if st.headline.within_noise else 'beyond noise'}")
+    u = diag.unexplained
+    if u is not None:
+        for st in u.steps:
+            tried = ", ".join(f"{t.covariate} {t.dbic:.0f}" if t.fit is not None else f"{t.covariate} (n/a)" for t in st.trials)
+            lines.append(f"  {'+ empirical(' + st.covariate + ')':<36} {st.fit.model.name:<48} headline "
+                         f"{st.headline.error_pct:6.2f} %  {'within noise' if st.headline.within_noise else 'beyond noise'}"
+                         f"   (for {st.family}; dBIC of the shapes tried: {tried})")
     lines += ["", diag.summary()]
-    if diag.best is not None:
-        lines += ["", diag.best.fit.report(), "",
-                  f"Headline error: {diag.model_headline.error_pct:.2f} % with {diag.model_fit.model.name} -> "
-                  f"{diag.refit_headline.error_pct:.2f} % with {diag.best.fit.model.name} "
-                  f"(noise alone: {diag.refit_headline.noise_pct:.2f} %; "
-                  f"{'what remains is within noise' if diag.refit_headline.within_noise else 'something remains beyond noise'})."]
-        if diag.after_best:
-            nxt = diag.after_best[0]
-            lines.append(f"After adding {diag.best.effect.name}, the next candidate is {nxt.effect.name} (dBIC {nxt.dbic:.1f}): "
-                         f"try rig diagnose --model {diag.best.fit.model.name}.")
-        else:
-            lines.append(f"After adding {diag.best.effect.name}, no further effect is significant.")
+    if len(diag.steps) > 1:
+        lines += ["", diag.catalogue_fit.report()]
+    if u is not None and u.steps:
+        lines += ["", u.final_fit.report()]
+    lines += ["", f"Final: {diag.final_fit.model.name}: headline error {diag.final_headline}"]
     return "\n".join(lines)

@@ -1,59 +1,178 @@
-"""Where the model fails, and which missing physical effect most likely explains it.
+"""Where the model fails, and which missing physical effects most likely explain it.
 
 `diagnose(data)` fits the model (by default the physical one: `active` with the projector on,
-`passive` without), tries every applicable effect not in it, and ranks them by evidence:
-the drop in BIC and the likelihood-ratio p-value. An effect is significant when BIC falls by
-more than 10 (very strong evidence) and p < 0.001. It is reported as missing only if the
-model without it is off by more than sampling noise (see `rig.diagnosis.scores`): with
-hundreds of millions of samples, effects too small to matter are still significant.
+`passive` without) and checks every statistic it predicts (`rig.diagnosis.consistency`). While
+something is beyond noise, it tries every applicable effect of the catalogue not yet in the
+model (the built-in ones, installed plugins' and the user's: `rig.models.Catalogue`), ranks them
+by evidence (the drop in BIC and the likelihood-ratio p-value, `rig.diagnosis.candidates`),
+adds the most likely one, and goes on from there: the path shows each step's model, headline
+error and BIC change. An effect is significant when BIC falls by more than 10 (very strong
+evidence) and p < 0.001; with hundreds of millions of samples, effects too small to matter are
+still significant, so one is added only while the model without it is beyond noise.
 
 Effects that fit the data about equally well (an improvement within 2 % of the best) cannot
 be told apart by the fit; among them the one with fewer free parameters is preferred, because
 it predicts the size of the effect from geometry or a measurement (the projector-off frames,
 the per-frame series, the depth unit) instead of fitting it.
+
+When no significant effect is left and the model is still beyond noise, the missing effect is
+not in the catalogue: the diagnosis says so, finds what the residual follows and fits an
+empirical shape to it (`rig.diagnosis.unexplained`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..models import BASES, Model, ModelData, ModelFit, power_law
+from ..models import BASES, Catalogue, Model, ModelData, ModelFit, power_law, with_errors
 from .candidates import SIGNIFICANT_DBIC, Candidate, choose, rank_candidates
-from .scores import Headline, headline
 from .residuals import Residuals, residuals
+from .scores import Headline, headline
+from .unexplained import Unexplained, explain_residual
+
+#: at most this many catalogue effects are added, one at a time
+MAX_STEPS = 4
+#: an effect is added only if it removes at least this share of the misfit (`Headline.misfit`): with
+#: millions of samples, an effect can be significant and still leave the error where it was
+MATERIAL_FRACTION = 0.3
+
+
+@dataclass
+class Step:
+    """One model on the diagnosis's path: its fit, headline, the effect that made it, and the ranking made from it."""
+
+    fit: ModelFit
+    headline: Headline
+    added: Candidate | None = None
+    equivalent: list[Candidate] = field(default_factory=list)
+    candidates: list[Candidate] = field(default_factory=list)  # effects tried on top of this model
+
+    @property
+    def name(self) -> str:
+        return self.fit.model.name
 
 
 @dataclass
 class Diagnosis:
     source: str
     data: ModelData
-    model_fit: ModelFit
+    steps: list[Step]
     power_law_fit: ModelFit
-    model_headline: Headline
-    candidates: list[Candidate]
-    best: Candidate | None
-    equivalent: list[Candidate]
-    refit_headline: Headline | None
-    residuals: Residuals
-    after_best: list[Candidate] = field(default_factory=list)
+    residuals: Residuals  # of the starting model
+    unexplained: Unexplained | None = None
 
+    # -- the start, the first effect and the end --------------------------------------------
+    @property
+    def model_fit(self) -> ModelFit:
+        return self.steps[0].fit
+
+    @property
+    def model_headline(self) -> Headline:
+        return self.steps[0].headline
+
+    @property
+    def candidates(self) -> list[Candidate]:
+        return self.steps[0].candidates
+
+    @property
+    def best(self) -> Candidate | None:
+        return self.steps[1].added if len(self.steps) > 1 else None
+
+    @property
+    def equivalent(self) -> list[Candidate]:
+        return self.steps[1].equivalent if len(self.steps) > 1 else []
+
+    @property
+    def refit_headline(self) -> Headline | None:
+        return self.steps[1].headline if len(self.steps) > 1 else None
+
+    @property
+    def after_best(self) -> list[Candidate]:
+        return [c for c in self.steps[1].candidates if c.significant] if len(self.steps) > 1 else []
+
+    @property
+    def added(self) -> list[str]:
+        """The catalogue effects the path added, in order."""
+        return [s.added.effect.name for s in self.steps[1:] if s.added is not None]
+
+    @property
+    def catalogue_fit(self) -> ModelFit:
+        """The last model of the path: the start plus every catalogue effect added."""
+        return self.steps[-1].fit
+
+    @property
+    def catalogue_headline(self) -> Headline:
+        return self.steps[-1].headline
+
+    @property
+    def final_fit(self) -> ModelFit:
+        return self.unexplained.final_fit if self.unexplained is not None else self.catalogue_fit
+
+    @property
+    def final_headline(self) -> Headline:
+        return self.unexplained.final_headline if self.unexplained is not None else self.catalogue_headline
+
+    # -- words ------------------------------------------------------------------------------
     def summary(self) -> str:
-        """One or two plain sentences: what is missing, or that nothing is."""
+        """A few plain sentences: what is missing, or that nothing is, and what remains."""
         m = self.model_fit.model.name
-        if self.best is None:
-            minor = [c.effect.name for c in self.candidates if c.significant]
-            if minor:
-                return (f"Nothing material is missing from {m}: its headline error is {self.model_headline}. "
-                        f"({', '.join(minor)} would raise the likelihood a little, but the model already fits to within sampling noise.)")
-            return (f"Nothing significant is missing from {m}: no effect lowers BIC by more than "
-                    f"{-SIGNIFICANT_DBIC:g}; the headline error is {self.model_headline}.")
-        e = self.best.effect
+        shape = _shape_sentence(self.model_headline)
+        if len(self.steps) == 1:
+            if self.model_headline.within_noise:
+                minor = [c.effect.name for c in self.candidates if c.significant]
+                if minor:
+                    return (f"Nothing material is missing from {m}: its headline error is {self.model_headline}. "
+                            f"({', '.join(minor)} would raise the likelihood a little, but the model already fits to "
+                            "within sampling noise.)")
+                return (f"Nothing significant is missing from {m}: no effect lowers BIC by more than "
+                        f"{-SIGNIFICANT_DBIC:g}; the headline error is {self.model_headline}.")
+            s = (f"{m} is beyond noise ({self.model_headline}){shape}, and no effect of the catalogue explains it "
+                 "(none lowers BIC significantly).")
+            return s + self._unexplained_sentence()
+        first = self.steps[1].added
+        e = first.effect
         s = f"Most likely missing: {e.name}. {e.signature[0].upper() + e.signature[1:]}: {e.explanation}."
-        others = [c.effect.name for c in self.equivalent if c is not self.best]
+        others = [c.effect.name for c in self.steps[1].equivalent if c is not first]
         if others:
             s += (f" ({', '.join(others)} fits about as well; {e.name} is preferred because it "
-                  f"{'has no free parameter' if not self.best.fit.n_free - self.model_fit.n_free else 'has fewer free parameters'}.)")
+                  f"{'has no free parameter' if not first.fit.n_free - self.model_fit.n_free else 'has fewer free parameters'}.)")
+        s += shape
+        if len(self.steps) > 2:
+            s += " Then: " + ", then ".join(f"{st.added.effect.name} ({st.added.effect.explanation})" for st in self.steps[2:]) + "."
+        last = self.steps[-1]
+        if last.headline.within_noise:
+            s += f" With {last.name} every statistic is within noise (headline error {last.headline.error_pct:.2f} %)."
+        else:
+            s += f" With {last.name} the model is still beyond noise ({last.headline.verdict()})."
+            s += self._unexplained_sentence()
         return s
+
+    def _unexplained_sentence(self) -> str:
+        u = self.unexplained
+        if u is None:
+            return ""
+        if not u.steps:
+            return " The missing effect is not in the catalogue, and no empirical shape could be fitted to it."
+        first = u.steps[0]
+        also = f" (equally well: {', '.join(first.equivalent)})" if first.equivalent else ""
+        s = (f" Not explained by the catalogue: what remains ({first.family}) follows {first.covariate}{also}. "
+             f"An empirical shape over {first.covariate} (rig fit --model {u.steps[0].fit.model.name})")
+        for st in u.steps[1:]:
+            s += f", then over {st.covariate} (for {st.family})"
+        h = u.final_headline
+        s += f" brings the headline error to {h.error_pct:.2f} %: " + (
+            "every statistic within noise." if h.within_noise else f"still beyond noise ({h.verdict()}).")
+        return s + " Write the physics as an effect (docs/effects.md) to replace it."
+
+
+def _shape_sentence(h: Headline) -> str:
+    """A sentence when the distribution's shape (kurtosis) is wrong, not only its width."""
+    c = h.consistency.find("kurtosis", "range") if h.consistency is not None else None
+    if c is None or c.p_value >= h.consistency.threshold_with(1):
+        return ""
+    i = c.worst()
+    return (f" The distribution's shape is wrong too: kurtosis {c.measured[i]:.2f} measured against "
+            f"{c.predicted[i]:.2f} predicted at {c.labels[i]} (+/- {c.se[i]:.2f}); heavy tails are an outliers-type effect.")
 
 
 def default_model(d: ModelData) -> Model:
@@ -61,19 +180,31 @@ def default_model(d: ModelData) -> Model:
     return Model(BASES["active"] if d.projector_on.mean() > 0.5 else BASES["passive"])
 
 
-def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", second_round: bool = True) -> Diagnosis:
+def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", catalogue: Catalogue | None = None,
+             max_steps: int = MAX_STEPS, explain: bool = True, second_round: bool | None = None) -> Diagnosis:
+    """Fit `model`, add missing catalogue effects one at a time (at most `max_steps`), then, with `explain`,
+    describe what remains beyond noise with empirical terms. `second_round=False` is `max_steps=1`."""
+    if second_round is False:
+        max_steps = 1
+    catalogue = catalogue or Catalogue.default()
     model = model or default_model(d)
-    base = model.fit(d)
-    pl = base if model.name == "power_law" else Model(power_law).fit(d)
-    cands = rank_candidates(model, base, d)
-    base_head = headline(base, d)
-    best, equivalent = choose(cands)
-    if base_head.within_noise:
-        # significant but immaterial: the model already describes the error to within sampling noise
-        best, equivalent = None, []
-    refit_head = headline(best.fit, d) if best else None
-    after: list[Candidate] = []
-    if best is not None and second_round:
-        after = [c for c in rank_candidates(best.fit.model, best.fit, d) if c.significant]
-    return Diagnosis(source, d, base, pl, base_head, cands, best, equivalent, refit_head,
-                     residuals(base, d), after)
+    fit = model.fit(d)
+    pl = fit if model.name == "power_law" else Model(power_law).fit(d)
+    steps = [Step(fit, headline(fit, d))]
+    steps[0].candidates = rank_candidates(model, fit, d, catalogue)  # shown even when nothing is missing
+    while not steps[-1].headline.within_noise and len(steps) <= max_steps:
+        current = steps[-1]
+        if len(steps) > 1:
+            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue)
+        best, equivalent = choose(current.candidates)
+        if best is None:
+            break
+        after = headline(best.fit, d)
+        if len(steps) > 1 and after.misfit > (1 - MATERIAL_FRACTION) * current.headline.misfit:
+            break  # significant, but it leaves what is wrong where it was: not the missing effect
+        best.fit = with_errors(best.fit, d)
+        steps.append(Step(best.fit, after, best, equivalent))
+    unexplained = None
+    if explain and not steps[-1].headline.within_noise:
+        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d)
+    return Diagnosis(source, d, steps, pl, residuals(fit, d), unexplained)

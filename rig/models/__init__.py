@@ -10,28 +10,53 @@ to, and their likelihood), `covariates` (what effects need besides range), `para
 `prediction` (the per-pixel prediction and the stages effects join at), `file_physics` (what
 the depth format fixes for every model), `closed_form` (the paper's estimator), `result` (one
 fitted-model type, one report), `optimise` (maximum likelihood for any model), `composition`
-(components and `base + effect`), `bases` (the power law), `effects` (the catalogue), `parse`
-(models from text) and `paper_fit` (the paper's fit as a fitted model).
+(components and `base + effect`), `bases` (the power law), `effects` (the built-in physical
+effects), `rounding` (exact moments of depth rounded to its unit), `empirical` (free-form terms),
+`user_effects` (effects written by the user: @effect, load_effects), `catalogue` (every effect a
+model can use, by name), `parse` (models from text) and `paper_fit` (the paper's fit as a fitted
+model).
 """
 
 from .bases import BASES, Base, active, fixed_lambda, passive, power_law
+from .catalogue import Catalogue
 from .closed_form import PowerLawEstimate, power_law_mle
 from .composition import Component, Model
 from .data import ModelData, load_samples
-from .effects import (EFFECTS, Ambient, Censoring, Drift, Effect, Incidence, NoiseFloor, Outliers, Quantization, ReadNoise,
-                      SlantRange, ambient, censoring, drift, incidence, noise_floor, outliers, quantization, read_noise,
-                      slant_range)
-from .optimise import fit_model
+from .effects import (
+                      EFFECTS,
+                      Ambient,
+                      Censoring,
+                      Drift,
+                      Effect,
+                      Incidence,
+                      NoiseFloor,
+                      Outliers,
+                      Quantization,
+                      ReadNoise,
+                      SlantRange,
+                      ambient,
+                      censoring,
+                      drift,
+                      incidence,
+                      noise_floor,
+                      outliers,
+                      quantization,
+                      read_noise,
+                      slant_range,
+)
+from .empirical import empirical
+from .optimise import fit_model, with_errors
+from .paper_fit import fit_power_law
 from .parameters import Param
 from .parse import parse_model
-from .paper_fit import fit_power_law
 from .prediction import EffectStage, Prediction
 from .result import ModelFit, likelihood_ratio
+from .user_effects import Covariates, EffectFileError, effect, load_effects
 
 __all__ = [
     "BASES", "Base", "active", "fixed_lambda", "passive", "power_law", "Component", "Param", "Model", "parse_model", "PowerLawEstimate", "power_law_mle",
     "ModelData", "load_samples", "EFFECTS", "Effect", "Ambient", "Censoring", "Drift", "Incidence", "NoiseFloor",
     "Outliers", "Quantization", "ReadNoise", "SlantRange", "ambient", "censoring", "drift", "incidence", "noise_floor",
-    "outliers", "quantization", "read_noise", "slant_range", "fit_model", "fit_power_law", "EffectStage", "Prediction",
-    "ModelFit", "likelihood_ratio",
+    "outliers", "quantization", "read_noise", "slant_range", "fit_model", "with_errors", "fit_power_law", "EffectStage", "Prediction",
+    "ModelFit", "likelihood_ratio", "Catalogue", "empirical", "Covariates", "EffectFileError", "effect", "load_effects",
 ]

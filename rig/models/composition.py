@@ -102,7 +102,7 @@ class Model:
 
     def loglik(self, values: dict[str, float], d: ModelData) -> float:
         pred = self.predict(values, d)
-        return d.loglik(pred.var_m2, pred.k4_m4)
+        return d.loglik(pred.var_m2, pred.k4_m4, pred.fill)
 
     def check(self, d: ModelData) -> None:
         for e in self.effects:
@@ -110,5 +110,6 @@ class Model:
             if why:
                 raise ValueError(why)
 
-    def fit(self, d: ModelData, start: dict[str, float] | None = None) -> "ModelFit":
-        return fit_model(self, d, start)
+    def fit(self, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True) -> "ModelFit":
+        """Maximum likelihood (rig.models.optimise); `errors=False` skips the standard errors."""
+        return fit_model(self, d, start, errors=errors)

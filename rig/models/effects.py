@@ -16,6 +16,7 @@ from .data import ModelData
 from .file_physics import MAX_DEPTH_UNITS, truncated_normal_moments
 from .parameters import Param
 from .prediction import EffectStage, Prediction
+from .rounding import expected_sample_variance, grid_offset
 
 
 class Effect(Component):
@@ -158,6 +159,7 @@ class Drift(Effect):
 
     def apply(self, pred, p, d):
         pred.add(d.drift_var_m2)
+        pred.common_inv2 = pred.common_inv2 + d.drift_var_m2 / d.z_m**4
 
 
 class Censoring(Effect):
@@ -189,22 +191,32 @@ class Censoring(Effect):
 
 
 class Quantization(Effect):
-    """Rounding to the depth unit q (and to the matcher's disparity step, if given) adds q^2 / 12.
+    """Rounding to the depth unit q (and to the matcher's disparity step, if given).
 
-    A uniform rounding error has fourth cumulant -q^4 / 120. The depth unit comes from the
-    recording, so there is no free parameter.
+    Exactly, whatever the noise against q (`rig.models.rounding`): a pixel's rounded samples have
+    the variance and fourth moment of a rounded normal whose true mean sits where the pixel's
+    measured mean says it does between two depth levels: from 0 to q^2 / 4 when the noise is
+    below q, q^2 / 12 more than the noise (Sheppard's correction) when it is well above. A
+    disparity step s adds s^2 / 12 in disparity. The depth unit comes from the recording, so
+    there is no free parameter.
     """
 
     name = "quantization"
     stage = EffectStage.QUANTIZE
     params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
     signature = "the error levels off at short range near the size of the depth unit"
-    explanation = "quantization: depth is rounded to the depth unit (and disparity to the matcher's step), adding q^2/12"
+    explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "
+                   "adding q^2/12, or less for a noise below the unit")
 
     def apply(self, pred, p, d):
-        q2 = d.depth_unit_m**2
+        q = d.depth_unit_m
         step2 = d.disparity_to_range(p.get("quantization.step_px", 0.0) ** 2)
-        pred.add(q2 / 12 + step2 / 12, -(q2**2) / 120 - step2**2 / 120)
+        var_in = pred.var_m2 + step2 / 12
+        s = np.sqrt(var_in) / q
+        var_u, mu4_u = expected_sample_variance(s, grid_offset(d.z_m / q), d.n)
+        k4_rounding = (mu4_u - 3 * var_u**2) * q**4 - (step2**2) / 120
+        pred.var_m2 = var_u * q**2
+        pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding
 
 
 class Outliers(Effect):

@@ -5,6 +5,7 @@ Cramer-Rao standard errors from a finite-difference Hessian of the log-likelihoo
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -50,8 +51,9 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return h
 
 
-def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None) -> ModelFit:
-    """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao)."""
+def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True) -> ModelFit:
+    """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao), unless
+    `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later)."""
     model.check(d)
     values = {n: p.value for n, p in model.parameters()}
     # the base alone has a closed-form fit (the paper's): start there
@@ -107,10 +109,19 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None)
     y0 = starts[0]
     best = unpack(res.x)
     ll = model.loglik(best, d)
-    errors, cov = _standard_errors(model, best, d, names)
-    return ModelFit(model, best, errors, ll, len(d), d.n_samples, bool(res.success) or res.fun < objective(y0),
+    se, cov = _standard_errors(model, best, d, names) if errors else ({}, None)
+    return ModelFit(model, best, se, ll, len(d), d.n_samples, bool(res.success) or res.fun < objective(y0),
                     str(res.message), dof=float(d.nu.sum()), z_range_m=(float(d.z_m.min()), float(d.z_m.max())),
                     covariance=cov)
+
+
+def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:
+    """`fit` with its Cramer-Rao standard errors and covariance (computed if it was fitted without them)."""
+    names = [n for n, _ in fit.model.free()]
+    if not names or all(n in fit.errors for n in names):
+        return fit
+    se, cov = _standard_errors(fit.model, fit.values, d, names)
+    return replace(fit, errors=se, covariance=cov)
 
 
 def _standard_errors(model: Model, values: dict[str, float], d: ModelData,

@@ -2,19 +2,10 @@
 
 from __future__ import annotations
 
-from .bases import BASES
+from .catalogue import Catalogue
 from .composition import Model
-from .effects import EFFECTS
 
 
-def parse_model(text: str) -> Model:
-    """'active+slant_range+noise_floor' -> Model."""
-    parts = [p.strip() for p in text.replace(" ", "").split("+") if p.strip()]
-    if not parts or parts[0] not in BASES:
-        raise ValueError(f"model {text!r} must start with a base model ({', '.join(BASES)}), e.g. active+slant_range")
-    m = Model(BASES[parts[0]])
-    for name in parts[1:]:
-        if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r} in model {text!r}; effects: {', '.join(EFFECTS)}")
-        m = m + EFFECTS[name]
-    return m
+def parse_model(text: str, catalogue: Catalogue | None = None) -> Model:
+    """'active+slant_range+noise_floor' -> Model, with the effects of `catalogue` (default: the built-in ones)."""
+    return (catalogue or Catalogue.builtin()).parse(text)

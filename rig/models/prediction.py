@@ -8,10 +8,12 @@ requires changing another (see `rig.models.composition.Model.predict`):
   IMAGE_NOISE   add image noise relative to the pattern's shot noise: var *= 1 + terms
   DISPARITY     add disparity noise independent of light
   DRIFT         add the variance of the stop's mean over time
+  EMPIRICAL     multiply the variance by a free-form shape (rig.models.empirical)
   CENSOR        truncate the disparity error (the camera drops unconfident matches)
   (all models)  the deepest range the depth format holds, and the curvature of Z = f b / d
-  QUANTIZE      add rounding: q^2 / 12
+  QUANTIZE      round to the depth unit
   OUTLIERS      mix in uniform mismatches
+  TAILS         change the tails, the frame mean's or the fill rate's shape, measured or free-form
 """
 
 from __future__ import annotations
@@ -29,9 +31,11 @@ class EffectStage(IntEnum):
     IMAGE_NOISE = 20
     DISPARITY = 30
     DRIFT = 40
+    EMPIRICAL = 45
     CENSOR = 50
     QUANTIZE = 60
     OUTLIERS = 70
+    TAILS = 80
 
 
 @dataclass
@@ -44,6 +48,11 @@ class Prediction:
     var_m2: np.ndarray | None = None
     k4_m4: np.ndarray | None = None  # fourth cumulant; None = normal
     fill: np.ndarray | None = None  # predicted fraction of frames with a valid sample
+    #: variance over frames of a wander common to all pixels of a stop, in (1/m)^2 of 1/Z (drift); the
+    #: per-frame series measures it (rig.models.data.StopTable.series_var_inv2)
+    common_inv2: np.ndarray | float = 0.0
+    #: the variance over frames of the frame's mean, against what independent pixels give (1: independent)
+    frame_mean_gain: np.ndarray | float = 1.0
 
     def add(self, var_m2: np.ndarray | float, k4_m4: np.ndarray | float | None = None) -> None:
         """Add an independent component of variance (and fourth cumulant)."""

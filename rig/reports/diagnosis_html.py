@@ -28,7 +28,9 @@ tr.sig td {{ background: #f4f8ff; }} img {{ max-width: 100%; }} pre {{ backgroun
 <h1>Range-error diagnosis: {html.escape(diag.source)}</h1>
 <p class="summary">{html.escape(diag.summary())}</p>
 <p>Headline error of {html.escape(diag.model_fit.model.name)}: {html.escape(str(diag.model_headline))}
-{"<br>With " + html.escape(diag.best.fit.model.name) + ": " + html.escape(str(diag.refit_headline)) if diag.best else ""}</p>
+{"<br>With " + html.escape(diag.final_fit.model.name) + ": " + html.escape(str(diag.final_headline)) if diag.final_fit is not diag.model_fit else ""}</p>
+<h2>The path</h2>
+<table><tr><th>step</th><th>model</th><th>headline error</th><th>verdict</th></tr>{path_rows(diag)}</table>
 <h2>Candidate effects</h2>
 <table><tr><th>effect</th><th>ΔBIC</th><th>LRT</th><th>df</th><th>p</th><th>what it explains</th></tr>{rows}</table>
 <h2>Plots</h2>
@@ -39,3 +41,15 @@ tr.sig td {{ background: #f4f8ff; }} img {{ max-width: 100%; }} pre {{ backgroun
 """
     out.write_text(page)
     return out
+
+
+def path_rows(diag: Diagnosis) -> str:
+    rows = []
+    for st in diag.steps:
+        change = "start" if st.added is None else f"+ {st.added.effect.name} (ΔBIC {st.added.dbic:.1f})"
+        rows.append((change, st.name, st.headline))
+    if diag.unexplained is not None:
+        rows += [(f"+ empirical({st.covariate}) for {st.family}", st.fit.model.name, st.headline)
+                 for st in diag.unexplained.steps]
+    return "".join(f"<tr><td>{html.escape(c)}</td><td>{html.escape(m)}</td><td>{h.error_pct:.2f} % (noise {h.noise_pct:.2f} %)</td>"
+                   f"<td>{html.escape(h.verdict())}</td></tr>" for c, m, h in rows)

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..diagnosis import BinComparison, Diagnosis, compare_bins, range_bins  # noqa: E402
+from .shape_plot import plot_shape  # noqa: E402
 
 
 def _ratio_panel(ax, b: BinComparison, xlabel: str, title: str) -> None:
@@ -85,23 +86,59 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     plt.close(fig)
     paths.append(p)
 
-    if diag.best is not None:
-        d = diag.data
-        fig, ax = plt.subplots(figsize=(7, 4.2))
-        for fit, color in ((diag.model_fit, "tab:red"), (diag.best.fit, "tab:green")):
-            bb = compare_bins(d, fit.predict(d), range_bins(d.z_m)[0], d.z_m)
-            ax.errorbar(bb.center, 100 * bb.log_ratio, yerr=200 * bb.se_log, fmt="o-", ms=4, capsize=2, color=color,
-                        label=f"{fit.model.name}")
-        ax.axhline(0, color="k", lw=0.8)
-        ax.set_xlabel("Z [m]")
-        ax.set_ylabel("ln(σ measured / σ model) [%]")
-        ax.set_title(f"Adding {diag.best.effect.name}: headline error {diag.model_headline.error_pct:.2f} % → "
-                     f"{diag.refit_headline.error_pct:.2f} %")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        fig.tight_layout()
+    if len(diag.steps) > 1 or diag.unexplained is not None:
         p = out / "diagnosis-before-after.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
+        plot_path(diag, p)
         paths.append(p)
+    if diag.unexplained is not None:
+        prev, prev_error = diag.unexplained.start_fit, diag.unexplained.start_headline.error_pct
+        for st in diag.unexplained.steps:
+            p = out / f"diagnosis-shape-{st.covariate}.png"
+            plot_shape(st, prev, prev_error, diag.data, p)
+            paths.append(p)
+            prev, prev_error = st.fit, st.headline.error_pct
     return paths
+
+
+def plot_path(diag: Diagnosis, path: Path) -> None:
+    """The path: headline error after each step (and the noise level); sigma's residual by range at the
+    start, after the catalogue's effects and at the end."""
+    d = diag.data
+    names = ["start"] + [f"+ {s.added.effect.name}" for s in diag.steps[1:]]
+    errors = [s.headline.error_pct for s in diag.steps]
+    noise = [s.headline.noise_pct for s in diag.steps]
+    within = [s.headline.within_noise for s in diag.steps]
+    if diag.unexplained is not None:
+        for st in diag.unexplained.steps:
+            names.append(f"+ empirical({st.covariate})")
+            errors.append(st.headline.error_pct)
+            noise.append(st.headline.noise_pct)
+            within.append(st.headline.within_noise)
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.4))
+    x = np.arange(len(names))
+    ax.bar(x, errors, color=["tab:green" if w else "tab:red" for w in within])
+    ax.plot(x, noise, "k_", ms=30, mew=2, label="sampling noise alone")
+    ax.set_yscale("log")
+    ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("headline error [%]")
+    ax.set_title("The path: green = every statistic within noise")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    fits = [(diag.model_fit, "tab:red"), (diag.catalogue_fit, "tab:orange"), (diag.final_fit, "tab:green")]
+    seen = set()
+    for fit, color in fits:
+        if fit.model.name in seen:
+            continue
+        seen.add(fit.model.name)
+        bb = compare_bins(d, fit.predict(d), range_bins(d.z_m)[0], d.z_m)
+        ax2.errorbar(bb.center, 100 * bb.log_ratio, yerr=200 * bb.se_log, fmt="o-", ms=4, capsize=2, color=color,
+                     label=fit.model.name)
+    ax2.axhline(0, color="k", lw=0.8)
+    ax2.set_xlabel("Z [m]")
+    ax2.set_ylabel("ln(σ measured / σ model) [%]")
+    ax2.set_title(f"headline error {diag.model_headline.error_pct:.2f} % → {diag.final_headline.error_pct:.2f} %")
+    ax2.legend(fontsize=7)
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

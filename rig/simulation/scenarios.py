@@ -1,13 +1,20 @@
-"""Simulated recordings with a hidden effect, for testing the diagnosis blind.
+"""Simulated recordings with hidden effects, for testing the diagnosis blind.
 
 `rig simulate --scenario hidden --seed N OUT.h5`: the seed picks one effect (or none) and
 draws realistic parameters for it; the recording says nothing about it (the fake camera's
-description is concealed) and the answer goes only to OUT.answer.json.
+description is concealed) and the answer goes only to OUT.answer.json. `--effect NAME` hides a
+chosen one: any catalogue effect, a coarse depth unit (`coarse_depth_unit`, 1-4 mm), a pair of
+catalogue effects (`slant_range+noise_floor`) or an effect the model catalogue does not have
+(`beam_falloff`, `light_falloff`, `noisy_confidence`, `correlated_noise`, `scale_mixture`).
 
 The experiment is the paper's perpendicular one with the projector on (night-time, so any
 room light is the hidden `ambient` effect), 11 stops of 0.5-3.0 m, with a few projector-off
 frames per stop so ambient light can be measured. The depth unit is 0.05 mm, fine enough that
-rounding is below the noise, except where quantization (a coarse depth unit) is the hidden effect.
+rounding is below the noise, except where a coarse depth unit is the hidden effect.
+
+The simulator (fakes/) samples the physics; the models (rig/models/) predict it analytically;
+the two share no code. `EXPECTED` is the one place where they meet: what the diagnosis should
+say for each scenario.
 """
 
 from __future__ import annotations
@@ -56,21 +63,80 @@ MODEL_EFFECT_FOR = {
     "drift": "drift",
     "censoring": "censoring",
 }
+#: a depth unit coarser than the noise at short range (1-4 mm; noise 0.25-50 mm over the sweep)
+COARSE_DEPTH_UNIT = "coarse_depth_unit"
+#: pairs of catalogue effects hidden together
+PAIRS = ("slant_range+noise_floor", "incidence+outliers", "drift+censoring")
+#: effects the model catalogue lacks (fakes/effects.py), their parameter ranges, and the covariates the
+#: residual they leave may rightly be said to follow ("tails": the distribution's shape; "time": the frame mean)
+NOT_IN_CATALOGUE: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], tuple[str, ...]]] = {
+    "beam_falloff": (lambda r: {"n": r.uniform(3.0, 6.0)}, ("radius",)),
+    "light_falloff": (lambda r: {"p": r.uniform(2.5, 3.5)}, ("range", "radius")),
+    "noisy_confidence": (lambda r: {"threshold_px": r.uniform(0.2, 0.3), "score_noise_px": r.uniform(0.06, 0.12)},
+                         ("range",)),
+    "correlated_noise": (lambda r: {"sigma_px": r.uniform(0.03, 0.06), "length_px": r.uniform(16.0, 32.0)}, ("time",)),
+    "scale_mixture": (lambda r: {"fraction": r.uniform(0.05, 0.1), "factor": r.uniform(3.0, 4.0)}, ("tails",)),
+}
+#: every scenario the blind test runs
+ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE]
+
+
+@dataclass(frozen=True)
+class Expected:
+    """What the diagnosis should say: the catalogue effects it should name (in any order), and for an
+    effect the catalogue lacks, the covariates the remaining residual may rightly be said to follow."""
+
+    named: tuple[str, ...] = ()
+    covariates: tuple[str, ...] = ()
+
+    @property
+    def kind(self) -> str:
+        return "open" if self.covariates else ("pair" if len(self.named) > 1 else "catalogue")
+
+
+def expected(effect: str) -> Expected:
+    if effect in NOT_IN_CATALOGUE:
+        return Expected((), NOT_IN_CATALOGUE[effect][1])
+    if effect == COARSE_DEPTH_UNIT:
+        return Expected(("quantization",))
+    if effect in PAIRS:
+        return Expected(tuple(MODEL_EFFECT_FOR[e] for e in effect.split("+")))
+    return Expected(() if effect == "none" else (MODEL_EFFECT_FOR[effect],))
+
+
 FINE_DEPTH_UNIT_MM = 0.05
 
 
 @dataclass
 class Scenario:
+    """effect: the scenario's name; params: the hidden simulator effects' parameters (effect name -> its
+    parameters; for a single catalogue effect, its parameters directly, as earlier answers had them)."""
+
     effect: str
-    params: dict[str, float] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
     width: int = 106
     frames: int = 100
     ambient_frames: int = 5
+    depth_unit_mm: float = FINE_DEPTH_UNIT_MM
+
+    def simulated(self) -> list[tuple[str, dict[str, float]]]:
+        """(fake effect, parameters) for each hidden simulator effect."""
+        if self.effect in ("none", "quantization", COARSE_DEPTH_UNIT):
+            return []
+        if "+" in self.effect:
+            return [(name, dict(self.params.get(name, {}))) for name in self.effect.split("+")]
+        return [(self.effect, dict(self.params))]
 
     def answer(self) -> dict[str, Any]:
         return {"scenario": "hidden", "seed": self.seed, "hidden_effect": self.effect, "parameters": self.params,
+                "depth_unit_mm": self.depth_unit_mm, "expected": vars(expected(self.effect)),
                 "image": [self.width, round(self.width * 480 / 848)], "frames_per_stop": self.frames}
+
+
+def _draw(name: str, rng: np.random.Generator) -> dict[str, float]:
+    draw = HIDDEN[name] if name in HIDDEN else NOT_IN_CATALOGUE[name][0]
+    return {k: round(float(v), 4) for k, v in draw(rng).items()}
 
 
 def hidden_scenario(seed: int, effect: str | None = None, **kw: Any) -> Scenario:
@@ -78,10 +144,21 @@ def hidden_scenario(seed: int, effect: str | None = None, **kw: Any) -> Scenario
     rng = np.random.default_rng(seed)
     pick = CHOICES[int(rng.integers(len(CHOICES)))]
     effect = effect or pick
-    if effect not in CHOICES:
-        raise ValueError(f"unknown effect {effect!r}; choose one of {', '.join(CHOICES)}")
-    params = {k: round(float(v), 4) for k, v in HIDDEN[effect](rng).items()} if effect != "none" else {}
-    return Scenario(effect, params, seed, **kw)
+    if effect not in ALL_SCENARIOS:
+        raise ValueError(f"unknown effect {effect!r}; choose one of {', '.join(ALL_SCENARIOS)}")
+    unit = FINE_DEPTH_UNIT_MM
+    params: dict[str, Any] = {}
+    if effect == "quantization":
+        params = _draw(effect, rng)
+        unit = params["depth_unit_mm"]
+    elif effect == COARSE_DEPTH_UNIT:
+        unit = round(float(rng.uniform(1.0, 4.0)), 3)
+        params = {"depth_unit_mm": unit}
+    elif effect in PAIRS:
+        params = {name: _draw(name, rng) for name in effect.split("+")}
+    elif effect != "none":
+        params = _draw(effect, rng)
+    return Scenario(effect, params, seed, depth_unit_mm=unit, **kw)
 
 
 def record_scenario(sc: Scenario, out: str | Path, *, progress=None) -> Path:
@@ -90,12 +167,10 @@ def record_scenario(sc: Scenario, out: str | Path, *, progress=None) -> Path:
     for p in (out, answer_path(out)):
         if p.exists():
             p.unlink()
-    params = dict(sc.params)
-    depth_unit_mm = params.pop("depth_unit_mm", FINE_DEPTH_UNIT_MM) if sc.effect == "quantization" else FINE_DEPTH_UNIT_MM
-    effects = [make_effect(sc.effect, **params)] if sc.effect not in ("none", "quantization") else []
+    effects = [make_effect(name, **params) for name, params in sc.simulated()]
     world = FakeWorld(Wall(distance_m=1.0))
     height = round(sc.width * 480 / 848)
-    cam = FakeCamera(world, width=sc.width, height=height, depth_scale_m=depth_unit_mm / 1000, effects=effects,
+    cam = FakeCamera(world, width=sc.width, height=height, depth_scale_m=sc.depth_unit_mm / 1000, effects=effects,
                      seed=sc.seed, conceal=True, serial=f"SIM-{sc.seed:04d}", light="night")
     stage = FakeStage(world, seed=sc.seed)
     plan = perpendicular(frames_per_stop=sc.frames, projector_on=True, ambient_frames=sc.ambient_frames)

@@ -1,0 +1,183 @@
+"""Does a fitted model predict every statistic the data measure, each within its own error?
+
+The headline compares sigma only. A model can get sigma right and still be wrong: heavy tails
+whose width scales with the noise leave sigma(Z) a pure power law while the kurtosis is three
+times too large; noise shared by neighbouring pixels leaves each pixel's sigma right while the
+frame's mean wanders far more than independent pixels allow. So the verdict checks every
+family of statistics the model predicts, each bin against its own sampling error:
+
+  sigma by range, by radius, by image position (8 x 6 tiles), by IR brightness, by incidence
+      z = ln(sigma measured / sigma predicted) / se, se from the bin's degrees of freedom and kurtosis
+  kurtosis by range
+      z = (measured - predicted) / se, the measured kurtosis model-free (`ModelData.pixel_kurtosis`)
+      and its se from the pixels' scatter
+  fill rate by stop
+      z = (measured - predicted) / se, se binomial over the stop's pixel-frames
+  frame mean by stop (time): the variance over frames of the frame's mean of 1/z
+      predicted: sum(var / Z^4) / n_valid^2 from independent pixels, plus any common wander the
+      model has (drift); z = ln(measured / predicted) / sqrt(2 / (frames - 1))
+
+Each family is within noise when sum z^2 is consistent with chi^2 on as many degrees of freedom
+as it has bins (p >= ALPHA / number of families: the family-wise false alarm rate is ALPHA).
+"Within noise" is every family within noise; otherwise the worst family is named, with its
+worst bin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..models import ModelData, Prediction
+from .bins import BinComparison
+
+#: family-wise false-alarm rate of the verdict "within noise"
+ALPHA = 1e-3
+
+
+@dataclass
+class Check:
+    """One family of statistics: measured against predicted in bins, with z-scores.
+
+    quantity: what is compared ("sigma", "kurtosis", "fill rate", "frame-mean variance");
+    covariate: what the bins follow ("range", "radius", "position", "brightness", "incidence",
+    "time"); measured, predicted and se are in the quantity's own units (se of the measured value).
+    """
+
+    quantity: str
+    covariate: str
+    labels: list[str]
+    center: np.ndarray
+    measured: np.ndarray
+    predicted: np.ndarray
+    se: np.ndarray
+    z: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return f"{self.quantity} by {self.covariate}" if self.covariate != "time" else "frame mean over time"
+
+    @property
+    def chi2(self) -> float:
+        return float(np.sum(self.z**2))
+
+    @property
+    def dof(self) -> int:
+        return len(self.z)
+
+    @property
+    def p_value(self) -> float:
+        return float(chi2.sf(self.chi2, self.dof)) if self.dof else 1.0
+
+    @property
+    def excess_z(self) -> float:
+        """How far beyond noise, as one number: (chi^2 - dof) / sqrt(2 dof)."""
+        return (self.chi2 - self.dof) / np.sqrt(2 * max(self.dof, 1))
+
+    def worst(self) -> int:
+        return int(np.argmax(np.abs(self.z)))
+
+    def describe_worst(self) -> str:
+        i = self.worst()
+        fmt = (lambda v: f"{1000 * v:.4g} mm") if self.quantity == "sigma" else (lambda v: f"{v:.4g}")
+        return (f"{self.quantity} at {self.labels[i]}: {fmt(self.measured[i])} measured, {fmt(self.predicted[i])} "
+                f"predicted (+/- {fmt(self.se[i])}, {self.z[i]:+.1f} standard errors)")
+
+
+def sigma_check(b: BinComparison, covariate: str) -> Check:
+    return Check("sigma", covariate, b.labels, b.center, b.sigma_meas_m, b.sigma_pred_m, b.sigma_meas_m * b.se_log,
+                 b.log_ratio / b.se_log)
+
+
+def kurtosis_check(b: BinComparison) -> Check | None:
+    ok = np.isfinite(b.kurt_meas) & np.isfinite(b.se_kurt) & (b.se_kurt > 0)
+    if not ok.any():
+        return None
+    lab = [x for x, k in zip(b.labels, ok) if k]
+    return Check("kurtosis", "range", lab, b.center[ok], b.kurt_meas[ok], b.kurt_pred[ok], b.se_kurt[ok],
+                 (b.kurt_meas[ok] - b.kurt_pred[ok]) / b.se_kurt[ok])
+
+
+def fill_check(d: ModelData, pred: Prediction) -> Check:
+    """Each stop's fill rate against the model's (`ModelData.fill_by_stop`: the statistic the likelihood weighs)."""
+    idx, measured, se = d.fill_by_stop
+    fill = np.broadcast_to(np.asarray(pred.fill if pred.fill is not None else 1.0, dtype=float), d.z_m.shape)
+    count = np.bincount(idx, minlength=len(measured))
+    predicted = np.bincount(idx, weights=fill, minlength=len(measured)) / count
+    center = np.bincount(idx, weights=d.z_m, minlength=len(measured)) / count
+    stops = np.unique(d.stop)
+    labels = [_stop_label(d, int(s)) for s in stops]
+    return Check("fill rate", "stop", labels, center, measured, predicted, se, (measured - predicted) / se)
+
+
+def frame_mean_check(d: ModelData, pred: Prediction) -> Check | None:
+    """The variance over frames of each stop's frame-mean series against what the model predicts."""
+    t = d.stops
+    if t is None or not np.isfinite(t.series_var_inv2).any():
+        return None
+    common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), d.z_m.shape)
+    gain = np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), d.z_m.shape)
+    independent_inv2 = (pred.var_m2 - common * d.z_m**4) / d.z_m**4 * gain
+    labels, center, meas, predicted, se, dof = [], [], [], [], [], []
+    for s in np.unique(d.stop):
+        s = int(s)
+        measured, n_valid, frames = t.series_var_inv2[s], t.n_valid[s], t.frames[s]
+        if not (np.isfinite(measured) and np.isfinite(n_valid) and n_valid > 1 and frames > 3 and measured > 0):
+            continue
+        m = d.stop == s
+        # pixels that never changed (all samples on one depth level) are not in the data and add nothing
+        expected = float(np.sum(independent_inv2[m])) / n_valid**2 + float(np.mean(common[m]))
+        labels.append(_stop_label(d, s))
+        center.append(float(np.median(d.z_m[m])))
+        meas.append(measured)
+        predicted.append(expected)
+        se.append(measured * np.sqrt(2.0 / (frames - 1)))
+        dof.append(frames - 1.0)
+    if not labels:
+        return None
+    meas_a, pred_a = np.array(meas), np.array(predicted)
+    z = np.log(meas_a / pred_a) / np.sqrt(2.0 / np.array(dof))
+    return Check("frame-mean variance", "time", labels, np.array(center), meas_a, pred_a, np.array(se), z)
+
+
+def _stop_label(d: ModelData, s: int) -> str:
+    if d.stops is not None and s < len(d.stops.label):
+        return d.stops.label[s]
+    return f"stop {s}"
+
+
+@dataclass
+class Consistency:
+    """Every check of one fitted model."""
+
+    checks: list[Check]
+    alpha: float = ALPHA
+
+    @property
+    def threshold(self) -> float:
+        return self.threshold_with(0)
+
+    def threshold_with(self, extra: int) -> float:
+        """The p-value a family needs when `extra` families are tested besides these (Bonferroni)."""
+        return self.alpha / max(len(self.checks) + extra, 1)
+
+    def failing(self, extra: int = 0) -> list[Check]:
+        """The families beyond noise, worst first."""
+        bad = [c for c in self.checks if c.p_value < self.threshold_with(extra)]
+        return sorted(bad, key=lambda c: -c.excess_z)
+
+    @property
+    def within_noise(self) -> bool:
+        return not self.failing()
+
+    def within_noise_with(self, extra: int) -> bool:
+        return not self.failing(extra)
+
+    def worst(self, extra: int = 0) -> Check | None:
+        bad = self.failing(extra)
+        return bad[0] if bad else None
+
+    def find(self, quantity: str, covariate: str) -> Check | None:
+        return next((c for c in self.checks if c.quantity == quantity and c.covariate == covariate), None)

@@ -1,0 +1,141 @@
+"""When the catalogue's effects leave the model beyond noise: what the residual follows, and its shape.
+
+The families the verdict finds beyond noise (`rig.diagnosis.consistency`) say what kind of
+statistic is wrong. For sigma, every empirical shape that could follow it (range, radius, image
+position, IR brightness, incidence; `rig.models.empirical`) is fitted on top of the model, and
+the one that lowers BIC most is the covariate the residual follows; shapes within
+TIE_FRACTION of it are reported as equivalent (radius and incidence are one covariate on a
+perpendicular wall). A wrong kurtosis gets empirical tails, a wrong fill rate an empirical fill
+gain, a frame mean wandering more than independent pixels allow an empirical correlation
+(`empirical(time)`). Terms are added one at a time, worst family first, until every statistic
+is within noise or MAX_TERMS are in. The result is a calibrated model that says what shape the
+missing effect has, before anyone knows its physics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..models import Effect, ModelData, ModelFit, empirical, with_errors
+from ..models.empirical import COVARIATES
+from .consistency import Check
+from .scores import Headline, headline
+
+MAX_TERMS = 3
+#: sigma shapes fitted for a sigma residual
+SHAPES_TRIED = 3
+#: shapes whose BIC gain is within this fraction of the best one's are equivalent
+TIE_FRACTION = 0.02
+#: when two shapes are equivalent, name them in this order (the simplest reading first)
+SIGMA_SHAPES = ("range", "radius", "position", "brightness", "incidence")
+#: what each failing family asks for
+FAMILY_SHAPE = {"kurtosis": "tails", "fill rate": "fill", "frame-mean variance": "time"}
+
+
+@dataclass
+class ShapeTrial:
+    """One empirical shape tried on top of the model."""
+
+    covariate: str
+    fit: ModelFit | None
+    dbic: float
+    why_not: str = ""
+
+
+@dataclass
+class EmpiricalStep:
+    """One empirical term added: which family asked for it, what was tried, what it did."""
+
+    family: str  # the check that was worst ("sigma by radius", "kurtosis by range", ...)
+    covariate: str  # the shape chosen
+    term: Effect
+    fit: ModelFit
+    headline: Headline
+    trials: list[ShapeTrial] = field(default_factory=list)
+
+    @property
+    def equivalent(self) -> list[str]:
+        """Other covariates whose shape fits about as well (the data cannot tell them apart)."""
+        best = next((t for t in self.trials if t.covariate == self.covariate), None)
+        if best is None or best.fit is None:
+            return []
+        tol = max(10.0, TIE_FRACTION * abs(best.dbic))
+        return [t.covariate for t in self.trials
+                if t.fit is not None and t.covariate != self.covariate and t.dbic <= best.dbic + tol]
+
+
+@dataclass
+class Unexplained:
+    """What remains after the catalogue: the model it starts from, and the empirical terms that describe it."""
+
+    start_fit: ModelFit
+    start_headline: Headline
+    steps: list[EmpiricalStep]
+
+    @property
+    def covariate(self) -> str:
+        """The covariate the remaining residual follows most strongly (the first term's)."""
+        return self.steps[0].covariate if self.steps else ""
+
+    @property
+    def final_fit(self) -> ModelFit:
+        return self.steps[-1].fit if self.steps else self.start_fit
+
+    @property
+    def final_headline(self) -> Headline:
+        return self.steps[-1].headline if self.steps else self.start_headline
+
+
+def _shapes_for(check: Check | None, head: Headline) -> tuple[str, list[str]]:
+    """(family name, shapes to try) for the worst failing family. For sigma, the SHAPES_TRIED covariates whose
+    own checks are furthest beyond noise (a shape over a covariate the checks show flat cannot win)."""
+    if check is None or check.quantity == "sigma":
+        cons = head.consistency
+
+        def excess(cov: str) -> float:
+            c = cons.find("sigma", cov) if cons is not None else None
+            return c.excess_z if c is not None else float("-inf")
+
+        ranked = sorted(SIGMA_SHAPES, key=lambda cov: -excess(cov))[:SHAPES_TRIED]
+        return (check.name if check is not None else "sigma by range and radius"), [s for s in SIGMA_SHAPES if s in ranked]
+    return check.name, [FAMILY_SHAPE[check.quantity]]
+
+
+def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained:
+    """Add empirical terms to `fit`'s model, worst failing family first, until within noise (or MAX_TERMS)."""
+    out = Unexplained(fit, head, [])
+    current_fit, current_head = fit, head
+    tried: set[str] = set()
+    while not current_head.within_noise and len(out.steps) < MAX_TERMS:
+        cons = current_head.consistency
+        worst = cons.worst(extra=1) if cons is not None else None
+        if worst is None and current_head.sigma_within_noise:
+            break
+        family, shapes = _shapes_for(worst, current_head)
+        shapes = [s for s in shapes if s not in tried]
+        if not shapes:
+            break
+        trials = []
+        for covariate in shapes:
+            term = empirical(covariate)
+            why = term.applicable(d)
+            if why:
+                trials.append(ShapeTrial(covariate, None, float("inf"), why))
+                continue
+            f = (current_fit.model + term).fit(d, start=current_fit.values, errors=False)
+            trials.append(ShapeTrial(covariate, f, f.bic - current_fit.bic))
+        usable = [t for t in trials if t.fit is not None]
+        if not usable:
+            break
+        best = min(usable, key=lambda t: t.dbic)
+        tol = max(10.0, TIE_FRACTION * abs(best.dbic))
+        order = {s: i for i, s in enumerate(shapes)}
+        chosen = min((t for t in usable if t.dbic <= best.dbic + tol), key=lambda t: order[t.covariate])
+        if chosen.covariate in COVARIATES or chosen.covariate == "position":
+            tried.update(SIGMA_SHAPES)  # one sigma shape per diagnosis: a second would fit the first's noise
+        tried.add(chosen.covariate)
+        term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(f"empirical({chosen.covariate})")]
+        current_fit = with_errors(chosen.fit, d)
+        current_head = headline(current_fit, d)
+        out.steps.append(EmpiricalStep(family, chosen.covariate, term, current_fit, current_head, trials))
+    return out

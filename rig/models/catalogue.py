@@ -1,0 +1,88 @@
+"""The effects a model can be built from: the built-in ones, installed plugins' and the user's files.
+
+    cat = Catalogue.default().with_file("my_effects.py")
+    model = cat.parse("active+slant_range+beam_falloff")
+    diagnose(data, catalogue=cat)          # ranks beam_falloff with the others
+
+Installed packages add effects under the entry-point group `rig.effects` (an `Effect`, or a
+list of them); `Catalogue.default()` includes them. Empirical terms (`empirical(radius)`,
+rig.models.empirical) parse in every catalogue but are not candidates: the diagnosis fits them
+only when nothing physical explains what remains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
+
+from .bases import BASES
+from .composition import Model
+from .effects import EFFECTS, Effect
+from .empirical import empirical, is_empirical
+from .user_effects import EffectFileError, load_effects
+
+ENTRY_POINT_GROUP = "rig.effects"
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    """Effects by name, with where each came from ("built-in", a file, or an entry point)."""
+
+    effects: dict[str, Effect] = field(default_factory=lambda: dict(EFFECTS))
+    sources: dict[str, str] = field(default_factory=lambda: {n: "built-in" for n in EFFECTS})
+
+    @classmethod
+    def builtin(cls) -> "Catalogue":
+        return cls()
+
+    @classmethod
+    def default(cls) -> "Catalogue":
+        """The built-in effects and those of installed plugins."""
+        cat = cls()
+        for ep in entry_points(group=ENTRY_POINT_GROUP):
+            try:
+                loaded = ep.load()
+            except Exception as e:
+                raise EffectFileError(f"the effect plugin {ep.name} ({ep.value}) failed to load ({type(e).__name__}: {e}); "
+                                      "reinstall or remove the package that provides it") from None
+            found = loaded if isinstance(loaded, (list, tuple)) else [loaded]
+            cat = cat.with_effects([e for e in found if isinstance(e, Effect)], f"entry point {ep.name}")
+        return cat
+
+    def with_effects(self, effects: list[Effect], source: str) -> "Catalogue":
+        """This catalogue and `effects`; a name taken already is a one-line error."""
+        names, sources = dict(self.effects), dict(self.sources)
+        for e in effects:
+            if e.name in names and names[e.name] is not e:
+                raise EffectFileError(f"effect {e.name} from {source} has the name of the {sources[e.name]} effect "
+                                      f"{e.name}; rename it")
+            names[e.name], sources[e.name] = e, source
+        return Catalogue(names, sources)
+
+    def with_file(self, path: str | Path) -> "Catalogue":
+        return self.with_effects(load_effects(path), str(path))
+
+    def candidates(self) -> list[Effect]:
+        """The effects the diagnosis tries, in catalogue order."""
+        return [e for e in self.effects.values() if not is_empirical(e)]
+
+    def user_effects(self) -> list[Effect]:
+        return [e for n, e in self.effects.items() if self.sources[n] != "built-in"]
+
+    def parse(self, text: str) -> Model:
+        """'active+slant_range+noise_floor' (or '...+empirical(radius)') -> Model."""
+        parts = [p.strip() for p in text.replace(" ", "").split("+") if p.strip()]
+        if not parts or parts[0] not in BASES:
+            raise ValueError(f"model {text!r} must start with a base model ({', '.join(BASES)}), e.g. active+slant_range")
+        m = Model(BASES[parts[0]])
+        for name in parts[1:]:
+            if name.startswith("empirical(") and name.endswith(")"):
+                m = m + empirical(name[len("empirical("):-1])
+                continue
+            if name not in self.effects:
+                known = ", ".join(self.effects)
+                raise ValueError(f"unknown effect {name!r} in model {text!r}; effects: {known}, or empirical(COVARIATE)"
+                                 + ("" if self.user_effects() else "; load your own with --effects FILE.py"))
+            m = m + self.effects[name]
+        return m

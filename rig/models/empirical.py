@@ -1,0 +1,240 @@
+"""Empirical terms: when no physical effect explains what remains, a free-form shape fitted to it.
+
+They are not physics. They describe the missing effect's shape (which the diagnosis plots) and
+give a calibrated model before the physics is known: `active+empirical(radius)` on the command
+line, `active + empirical("radius")` in Python.
+
+  empirical(range|radius|brightness|incidence)
+      sigma multiplied by exp(g(c)), g a smooth monotone-preserving curve (PCHIP) through knots
+      at the covariate's quantiles, g = 0 at the first knot (the base model's k sets the level
+      there); one free parameter per further knot (ln of the sigma multiplier there)
+  empirical(position)
+      sigma multiplied by exp(a x + b y + c x^2 + d x y + e y^2), x, y the normalised image
+      coordinates (u - cx) / fx, (v - cy) / fy
+  empirical(tails)
+      the excess kurtosis, a smooth curve over range through knots: heavier (or lighter) tails
+      than the model's, without changing sigma; it shows in the kurtosis term of the likelihood
+  empirical(time)
+      the variance over frames of the frame's mean, multiplied by exp(a + b ln(Z / 1 m)) against
+      what independent pixels give: noise shared by neighbouring pixels. The per-frame series
+      is not part of the likelihood, so a and b are measured (least squares over the stops),
+      not fitted, like the drift effect's wander
+  empirical(fill)
+      the fill rate multiplied by exp(a + b ln(Z / 1 m)), measured the same way: samples lost
+      for a reason the model does not know
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from .composition import Component
+from .data import ModelData
+from .effects import Effect
+from .parameters import Param
+from .prediction import EffectStage, Prediction
+
+#: the covariates a sigma shape can follow, with their units and how each is read from the data
+COVARIATES: dict[str, tuple[str, Callable[[ModelData], np.ndarray]]] = {
+    "range": ("m", lambda d: d.z_m),
+    "radius": ("tan of the off-axis angle", lambda d: np.sqrt(d.rho2)),
+    "brightness": ("IR DN", lambda d: d.ir),
+    "incidence": ("deg", lambda d: np.degrees(np.arccos(np.clip(d.cos_inc, -1.0, 1.0)))),
+}
+SHAPES = (*COVARIATES, "position", "tails", "time", "fill")
+KNOTS = 6
+
+
+def empirical(covariate: str) -> Effect:
+    """A new empirical term over `covariate` (one of SHAPES)."""
+    if covariate in COVARIATES:
+        return EmpiricalSigma(covariate)
+    makers = {"position": EmpiricalPosition, "tails": EmpiricalTails, "time": EmpiricalFrameMean, "fill": EmpiricalFill}
+    if covariate not in makers:
+        raise ValueError(f"empirical({covariate}): the covariate must be one of {', '.join(SHAPES)}")
+    return makers[covariate]()
+
+
+def _smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A shape-preserving cubic through (knots, values), flat beyond the ends."""
+    if len(knots) < 3:
+        return np.interp(x, knots, values)
+    return PchipInterpolator(knots, values, extrapolate=False)(np.clip(x, knots[0], knots[-1]))
+
+
+def _quantile_knots(c: np.ndarray, n: int) -> np.ndarray:
+    ok = c[np.isfinite(c)]
+    if ok.size == 0:
+        return np.array([0.0, 1.0])
+    knots = np.unique(np.quantile(ok, np.linspace(0.0, 1.0, n)))
+    return knots if knots.size >= 2 else np.array([knots[0], knots[0] + 1e-9])
+
+
+class EmpiricalSigma(Effect):
+    """An empirical sigma multiplier, smooth in one covariate (see the module docstring)."""
+
+    stage = EffectStage.EMPIRICAL
+
+    def __init__(self, covariate: str, knots: int = KNOTS):
+        self.covariate = covariate
+        self.name = f"empirical({covariate})"  # type: ignore[misc]
+        self.unit, self.read = COVARIATES[covariate]
+        self.knots: np.ndarray | None = None
+        self.params = tuple(  # type: ignore[misc]
+            Param(f"g{i}", 0.0, -3.0, 3.0, "ln", f"ln of the sigma multiplier at knot {i} of {covariate}")
+            for i in range(1, knots))
+        self.signature = f"sigma measured / sigma model changes smoothly with {covariate}"  # type: ignore[misc]
+        self.explanation = f"an empirical shape over {covariate}, not a physical effect"  # type: ignore[misc]
+
+    def applicable(self, d: ModelData) -> str | None:
+        c = self.read(d)
+        if np.isfinite(c).sum() < 10 or np.nanmax(c) - np.nanmin(c) <= 0:
+            return f"{self.name}: the data span no range of {self.covariate}"
+        return None
+
+    def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
+        if self.knots is None:
+            self.knots = _quantile_knots(self.read(d), len(self.params) + 1)
+        return {q.name: 0.0 for q in self.params}
+
+    def log_multiplier(self, c: np.ndarray, p: dict[str, float]) -> np.ndarray:
+        """ln(sigma multiplier) at covariate values c."""
+        knots = self.knots if self.knots is not None else np.linspace(0, 1, len(self.params) + 1)
+        g = np.array([0.0] + [p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)]
+        return np.where(np.isfinite(c), _smooth(knots, g, np.nan_to_num(c)), 0.0)
+
+    def apply(self, pred, p, d):
+        pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(self.read(d), p))
+
+
+class EmpiricalPosition(Effect):
+    """An empirical sigma multiplier over the image: a quadratic surface in the normalised coordinates."""
+
+    name = "empirical(position)"
+    covariate = "position"
+    stage = EffectStage.EMPIRICAL
+    params = tuple(Param(n, 0.0, -10.0, 10.0, "ln", f"coefficient of {t} in ln(sigma multiplier)")
+                   for n, t in (("a_x", "x"), ("a_y", "y"), ("a_xx", "x^2"), ("a_xy", "x y"), ("a_yy", "y^2")))
+    signature = "sigma measured / sigma model changes smoothly across the image"
+    explanation = "an empirical shape over the image, not a physical effect"
+
+    def applicable(self, d):
+        return None if d.x_norm is not None else "empirical(position): the data carry no image coordinates"
+
+    def log_multiplier(self, x: np.ndarray, y: np.ndarray, p: dict[str, float]) -> np.ndarray:
+        n = self.name
+        return (p[f"{n}.a_x"] * x + p[f"{n}.a_y"] * y + p[f"{n}.a_xx"] * x * x + p[f"{n}.a_xy"] * x * y
+                + p[f"{n}.a_yy"] * y * y)
+
+    def apply(self, pred, p, d):
+        pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(d.x_norm, d.y_norm, p))
+
+
+class EmpiricalTails(Effect):
+    """An empirical excess kurtosis over range, added to the model's (sigma unchanged)."""
+
+    covariate = "tails"
+    stage = EffectStage.TAILS
+
+    def __init__(self, knots: int = KNOTS):
+        self.name = "empirical(tails)"  # type: ignore[misc]
+        self.knots: np.ndarray | None = None
+        self.params = tuple(  # type: ignore[misc]
+            Param(f"e{i}", 0.0, -1.5, 50.0, "1", f"excess kurtosis at range knot {i}") for i in range(knots))
+        self.signature = "the measured kurtosis differs from the model's"  # type: ignore[misc]
+        self.explanation = "empirical tails: the errors' distribution is not the model's shape"  # type: ignore[misc]
+
+    def start(self, d, pred):
+        if self.knots is None:
+            self.knots = _quantile_knots(d.z_m, len(self.params))
+        return {q.name: 0.0 for q in self.params}
+
+    def excess(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
+        knots = self.knots if self.knots is not None else _quantile_knots(z_m, len(self.params))
+        e = np.array([p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)]
+        return _smooth(knots, e, z_m)
+
+    def apply(self, pred, p, d):
+        k4 = self.excess(d.z_m, p) * pred.var_m2**2
+        pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4
+
+
+class _MeasuredRangeGain(Effect):
+    """A gain exp(a + b ln Z) measured (not fitted) by least squares over the stops: see the subclasses."""
+
+    stage = EffectStage.TAILS
+    coefficients: tuple[float, float] = (0.0, 0.0)
+
+    def gain(self, z_m: np.ndarray) -> np.ndarray:
+        a, b = self.coefficients
+        return np.exp(a + b * np.log(z_m))
+
+    def _measure(self, z: np.ndarray, log_ratio: np.ndarray, weight: np.ndarray) -> None:
+        if len(z) >= 2 and np.ptp(np.log(z)) > 0:
+            b, a = np.polyfit(np.log(z), log_ratio, 1, w=np.sqrt(weight))
+        else:
+            a, b = (float(np.average(log_ratio, weights=weight)) if len(z) else 0.0), 0.0
+        self.coefficients = (float(a), float(b))
+
+
+class EmpiricalFrameMean(_MeasuredRangeGain):
+    """Empirical noise shared by neighbouring pixels: the frame mean's variance exp(a + b ln Z) times what
+    independent pixels give, measured from each stop's per-frame series."""
+
+    name = "empirical(time)"
+    covariate = "time"
+    signature = "the frame's mean depth wanders more (or less) than independent pixels allow"
+    explanation = "empirical correlation between pixels: neighbours' errors move together"
+
+    def applicable(self, d):
+        if d.stops is None or not np.isfinite(d.stops.series_var_inv2).any():
+            return "empirical(time): the recording has no per-frame series"
+        return None
+
+    def apply(self, pred, p, d):
+        t = d.stops
+        common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), d.z_m.shape)
+        independent = (pred.var_m2 - common * d.z_m**4) / d.z_m**4
+        z, ratio, weight = [], [], []
+        for s in np.unique(d.stop):
+            s = int(s)
+            m = d.stop == s
+            n_valid, measured, frames = t.n_valid[s], t.series_var_inv2[s], t.frames[s]
+            expected_independent = float(np.sum(independent[m])) / n_valid**2
+            excess = measured - float(np.mean(common[m]))
+            if not (np.isfinite(excess) and excess > 0 and expected_independent > 0 and frames > 3):
+                continue
+            z.append(float(np.median(d.z_m[m])))
+            ratio.append(np.log(excess / expected_independent))
+            weight.append((frames - 1) / 2.0)
+        self._measure(np.array(z), np.array(ratio), np.array(weight))
+        pred.frame_mean_gain = self.gain(d.z_m)
+
+
+class EmpiricalFill(_MeasuredRangeGain):
+    """Empirical sample loss: the fill rate exp(a + b ln Z) times the model's, measured stop by stop."""
+
+    name = "empirical(fill)"
+    covariate = "fill"
+    signature = "the fill rate differs from the model's"
+    explanation = "empirical sample loss: the camera drops samples for a reason the model does not know"
+
+    def apply(self, pred, p, d):
+        fill = pred.fill if pred.fill is not None else np.ones(len(d))
+        z, ratio, weight = [], [], []
+        for s in np.unique(d.stop):
+            m = d.stop == s
+            measured, predicted = float(np.mean(d.fill[m])), float(np.mean(fill[m]))
+            if measured > 0 and predicted > 0:
+                z.append(float(np.median(d.z_m[m])))
+                ratio.append(np.log(measured / predicted))
+                weight.append(float(m.sum()))
+        self._measure(np.array(z), np.array(ratio), np.array(weight))
+        pred.fill = np.clip(fill * self.gain(d.z_m), 0.0, 1.0)
+
+
+def is_empirical(e: Component) -> bool:
+    return isinstance(e, (EmpiricalSigma, EmpiricalPosition, EmpiricalTails, _MeasuredRangeGain))

@@ -1,0 +1,267 @@
+"""Effects written by the user, in a short Python file, that compose, fit and rank like the built-in ones.
+
+    from rig.models import Param, effect
+
+    @effect(stage="illumination",
+            params=[Param("n", 2.0, 0.0, 12.0, "1", "exponent of the beam's cos^n fall-off")],
+            signature="the error grows towards the image corners faster than slant range explains")
+    def beam_falloff(c, n):
+        '''The projector's beam falls off as cos^n of the off-axis angle.'''
+        return c.cos_off_axis ** -n          # the shot-noise variance grows as 1 / light
+
+The function gets the covariates `c` (`Covariates`) and the parameters by name, and returns, per
+pixel, what its stage takes:
+
+  illumination  a factor on the shot-noise variance: 1 / the light's relative change (projector on)
+  image_noise   image-noise variance relative to the pattern's shot noise, added (read noise, ambient light)
+  disparity     disparity variance in px^2, added (a noise floor); converted to range by (Z^2 / (f b))^2
+  range         range variance in m^2, added
+  variance      a factor on the total variance so far
+
+The effect's name is the function's; its explanation is the docstring's first line. Load the
+file with `--effects FILE.py` (rig fit, compare, diagnose; the TUI's Results screen), or publish
+effects from an installed package under the entry-point group `rig.effects`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import keyword
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .data import ModelData
+from .effects import Effect
+from .parameters import Param
+from .prediction import EffectStage, Prediction
+
+STAGES = {
+    "illumination": EffectStage.ILLUMINATION,
+    "image_noise": EffectStage.IMAGE_NOISE,
+    "disparity": EffectStage.DISPARITY,
+    "range": EffectStage.DISPARITY,
+    "variance": EffectStage.EMPIRICAL,
+}
+
+
+class EffectFileError(ValueError):
+    """An effects file or a user effect is not usable; the message names the file or effect and the fix."""
+
+
+@dataclass(eq=False)
+class Covariates:
+    """What a user effect may depend on, one value per pixel-stop.
+
+    z_m: range (m); rho2, rho: squared and plain normalised radius from the principal point
+    (tan of the off-axis angle); cos_off_axis = 1 / sqrt(1 + rho2); x_norm, y_norm: (u - cx) / fx,
+    (v - cy) / fy; u_px, v_px: pixel column and row; cos_incidence, incidence_deg: the angle at
+    which the ray meets the wall (plane fitted per stop); brightness_dn: mean IR brightness
+    (DN, NaN without IR images); ambient_ratio: ambient / pattern light (NaN without projector-off
+    frames); stop: the stop's index; time_s: the stop's middle, s after the first began;
+    projector_on; fb_px_m: focal length x baseline (px m); depth_unit_m. Per-pixel statistics
+    pool a stop's frames, so time within a stop enters only through the per-frame series.
+    """
+
+    data: ModelData
+
+    @property
+    def z_m(self) -> np.ndarray:
+        return self.data.z_m
+
+    @property
+    def rho2(self) -> np.ndarray:
+        return self.data.rho2
+
+    @cached_property
+    def rho(self) -> np.ndarray:
+        return np.sqrt(self.data.rho2)
+
+    @cached_property
+    def cos_off_axis(self) -> np.ndarray:
+        return 1.0 / np.sqrt(1.0 + self.data.rho2)
+
+    @property
+    def x_norm(self) -> np.ndarray:
+        return self.data.x_norm
+
+    @property
+    def y_norm(self) -> np.ndarray:
+        return self.data.y_norm
+
+    @property
+    def u_px(self) -> np.ndarray:
+        return self.data.u_px
+
+    @property
+    def v_px(self) -> np.ndarray:
+        return self.data.v_px
+
+    @property
+    def cos_incidence(self) -> np.ndarray:
+        return self.data.cos_inc
+
+    @cached_property
+    def incidence_deg(self) -> np.ndarray:
+        return np.degrees(np.arccos(np.clip(self.data.cos_inc, -1.0, 1.0)))
+
+    @property
+    def brightness_dn(self) -> np.ndarray:
+        return self.data.ir
+
+    @property
+    def ambient_ratio(self) -> np.ndarray:
+        return self.data.ambient_ratio
+
+    @property
+    def stop(self) -> np.ndarray:
+        return self.data.stop
+
+    @cached_property
+    def time_s(self) -> np.ndarray:
+        t = self.data.stops
+        return np.full(len(self.data), np.nan) if t is None else t.time_s[self.data.stop]
+
+    @property
+    def projector_on(self) -> np.ndarray:
+        return self.data.projector_on
+
+    @property
+    def fb_px_m(self) -> float:
+        return self.data.fb_px_m
+
+    @property
+    def depth_unit_m(self) -> float:
+        return self.data.depth_unit_m
+
+
+class UserEffect(Effect):
+    """An effect made from a function of the covariates (see the module docstring)."""
+
+    def __init__(self, fn: Callable[..., Any], *, stage: str, params: Sequence[Param] = (), signature: str,
+                 name: str | None = None, source: str = ""):
+        if stage not in STAGES:
+            raise EffectFileError(f"effect {name or fn.__name__}: stage {stage!r} is not one of {', '.join(STAGES)}")
+        self.fn = fn
+        self.name = name or fn.__name__  # type: ignore[misc]
+        self.stage_name = stage
+        self.stage = STAGES[stage]  # type: ignore[misc]
+        self.params = tuple(params)  # type: ignore[misc]
+        self.signature = signature  # type: ignore[misc]
+        doc = (fn.__doc__ or "").strip().splitlines()
+        self.explanation = doc[0] if doc else f"{self.name} (written by the user)"  # type: ignore[misc]
+        self.__doc__ = fn.__doc__ or self.explanation
+        self.source = source
+        _check_definition(self)
+
+    def _values(self, p: dict[str, float]) -> dict[str, float]:
+        return {q.name: p[f"{self.name}.{q.name}"] for q in self.params}
+
+    def evaluate(self, d: ModelData, p: dict[str, float]) -> np.ndarray:
+        """The function's per-pixel output for parameter values `p` (qualified names)."""
+        out = np.asarray(self.fn(covariates(d), **self._values(p)), dtype=float)
+        return np.broadcast_to(out, d.z_m.shape)
+
+    def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
+        values = {q.name: q.value for q in self.params}
+        try:
+            out = self.evaluate(d, {f"{self.name}.{k}": v for k, v in values.items()})
+        except Exception as e:
+            raise EffectFileError(f"effect {self.name}{_where(self)}: calling it with its start values failed "
+                                  f"({type(e).__name__}: {e}); fix the function") from None
+        bad = ~np.isfinite(out) | (out < 0)
+        if bad.any():
+            raise EffectFileError(f"effect {self.name}{_where(self)}: it returns {'non-finite' if (~np.isfinite(out)).any() else 'negative'} "
+                                  f"values at its start values ({int(bad.sum())} of {out.size} pixels); a {self.stage_name} "
+                                  "term must be finite and not negative")
+        return values
+
+    def apply(self, pred, p, d):
+        out = self.evaluate(d, p)
+        if self.stage_name == "illumination":
+            pred.illum = pred.illum * np.where(d.projector_on, out, 1.0)
+        elif self.stage_name == "image_noise":
+            pred.image_terms = pred.image_terms + out
+        elif self.stage_name == "disparity":
+            pred.add(d.disparity_to_range(out))
+        elif self.stage_name == "range":
+            pred.add(out)
+        else:
+            pred.var_m2 = pred.var_m2 * out
+
+
+def effect(*, stage: str, params: Sequence[Param] = (), signature: str, name: str | None = None) -> Callable[[Callable[..., Any]], UserEffect]:
+    """Make an effect of a function of the covariates (see the module docstring)."""
+
+    def wrap(fn: Callable[..., Any]) -> UserEffect:
+        return UserEffect(fn, stage=stage, params=params, signature=signature, name=name)
+
+    return wrap
+
+
+_COVARIATES: dict[int, tuple[ModelData, Covariates]] = {}
+
+
+def covariates(d: ModelData) -> Covariates:
+    """The covariates of `d` (one object per data set, so derived arrays are computed once)."""
+    hit = _COVARIATES.get(id(d))
+    if hit is None or hit[0] is not d:
+        if len(_COVARIATES) > 16:
+            _COVARIATES.clear()
+        hit = (d, Covariates(d))
+        _COVARIATES[id(d)] = hit
+    return hit[1]
+
+
+def _where(e: UserEffect) -> str:
+    return f" (in {e.source})" if e.source else ""
+
+
+def _check_definition(e: UserEffect) -> None:
+    if not e.name.isidentifier() or keyword.iskeyword(e.name) or e.name.startswith("empirical"):
+        raise EffectFileError(f"effect name {e.name!r}{_where(e)} must be a Python identifier (and not 'empirical...')")
+    seen = set()
+    for q in e.params:
+        if not isinstance(q, Param):
+            raise EffectFileError(f"effect {e.name}{_where(e)}: params must be Param(name, start, min, max, unit, doc)")
+        if not q.name.isidentifier() or q.name in seen:
+            raise EffectFileError(f"effect {e.name}{_where(e)}: parameter name {q.name!r} is not a unique identifier")
+        if not (q.min <= q.value <= q.max):
+            raise EffectFileError(f"effect {e.name}{_where(e)}: parameter {q.name} starts at {q.value}, outside "
+                                  f"its bounds {q.min}..{q.max}")
+        seen.add(q.name)
+    if not e.signature:
+        raise EffectFileError(f"effect {e.name}{_where(e)}: give a signature, the residual pattern it explains in plain words")
+
+
+def load_effects(path: str | Path) -> list[Effect]:
+    """The effects a Python file defines (module-level `Effect` objects, e.g. made with @effect)."""
+    path = Path(path)
+    if not path.is_file():
+        raise EffectFileError(f"{path} does not exist; pass a Python file that defines effects with @effect "
+                              "(see docs/effects.md)")
+    module_name = "rig_user_effects_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    if spec is None or spec.loader is None:
+        raise EffectFileError(f"{path} is not a Python file; name it *.py")
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as e:
+        raise EffectFileError(f"{path}:{e.lineno}: syntax error ({e.msg}); fix the line") from None
+    except EffectFileError as e:
+        raise EffectFileError(f"{e} (in {path})") from None
+    except Exception as e:
+        raise EffectFileError(f"{path}: running it failed ({type(e).__name__}: {e}); fix the file") from None
+    found = [v for v in vars(module).values() if isinstance(v, Effect)]
+    if not found:
+        raise EffectFileError(f"{path} defines no effect; decorate a function with @effect(stage=..., signature=...) "
+                              "(see docs/effects.md)")
+    for e in found:
+        if isinstance(e, UserEffect) and not e.source:
+            e.source = str(path)
+    return found

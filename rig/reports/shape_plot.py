@@ -1,0 +1,77 @@
+"""The shape of what the catalogue does not explain: an empirical term against the residual it was fitted to."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..diagnosis.bins import compare_bins  # noqa: E402
+from ..diagnosis.residuals import _subset  # noqa: E402
+from ..diagnosis.unexplained import EmpiricalStep  # noqa: E402
+from ..models import ModelData, ModelFit  # noqa: E402
+from ..models.empirical import COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition, EmpiricalSigma, EmpiricalTails  # noqa: E402
+
+QUANTILE_BINS = 12
+
+
+def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d: ModelData, path: Path) -> Path:
+    """One figure: the residual of the model before the term, binned along the covariate, and the term's shape."""
+    term, after = step.term, step.fit
+    fig, ax = plt.subplots(figsize=(7.5, 4.4))
+    if isinstance(term, EmpiricalSigma):
+        unit, read = COVARIATES[term.covariate]
+        c = read(d)
+        ok = np.isfinite(c)
+        edges = np.unique(np.nanquantile(c[ok], np.linspace(0, 1, QUANTILE_BINS + 1)))
+        groups = np.where(ok, np.clip(np.digitize(np.nan_to_num(c), edges[1:-1]), 0, len(edges) - 2), -1)
+        sel = groups >= 0
+        b = compare_bins(d.select(sel), _subset(before.predict(d), sel), groups[sel], c[sel])
+        ax.errorbar(b.center, np.exp(b.log_ratio), yerr=2 * b.se_log * np.exp(b.log_ratio), fmt="o", ms=4, capsize=2,
+                    label=f"measured / {before.model.name} (±2 s.e.)")
+        grid = np.linspace(np.nanmin(c), np.nanmax(c), 200)
+        ax.plot(grid, np.exp(term.log_multiplier(grid, after.values)), "-", color="tab:green",
+                label=f"{term.name}: the missing effect's shape")
+        ax.plot(term.knots, np.exp(term.log_multiplier(term.knots, after.values)), "s", color="tab:green", ms=5)
+        ax.set_xlabel(f"{term.covariate} [{unit}]")
+        ax.set_ylabel("σ multiplier")
+    elif isinstance(term, EmpiricalPosition):
+        fig.clf()
+        ax = fig.add_subplot(111)
+        x = np.linspace(np.nanmin(d.x_norm), np.nanmax(d.x_norm), 80)
+        y = np.linspace(np.nanmin(d.y_norm), np.nanmax(d.y_norm), 60)
+        xx, yy = np.meshgrid(x, y)
+        im = ax.imshow(np.exp(term.log_multiplier(xx, yy, after.values)), origin="upper", cmap="viridis",
+                       extent=(x[0], x[-1], y[-1], y[0]))
+        fig.colorbar(im, ax=ax, label="σ multiplier")
+        ax.set_xlabel("(u - cx) / fx")
+        ax.set_ylabel("(v - cy) / fy")
+    elif isinstance(term, EmpiricalTails):
+        b = compare_bins(d, before.predict(d), np.round(d.z_m / 0.25).astype(int), d.z_m)
+        ax.errorbar(b.center, b.kurt_meas, yerr=2 * b.se_kurt, fmt="o", ms=4, capsize=2, label="measured kurtosis")
+        ax.plot(b.center, b.kurt_pred, "-", color="tab:red", label=before.model.name)
+        a = compare_bins(d, after.predict(d), np.round(d.z_m / 0.25).astype(int), d.z_m)
+        ax.plot(a.center, a.kurt_pred, "-", color="tab:green", label=f"with {term.name}")
+        ax.set_xlabel("Z [m]")
+        ax.set_ylabel("kurtosis (normal = 3)")
+    elif isinstance(term, (EmpiricalFrameMean, EmpiricalFill)):
+        z = np.array(sorted({float(np.median(d.z_m[d.stop == s])) for s in np.unique(d.stop)}))
+        ax.plot(z, term.gain(z), "o-", color="tab:green", label=f"{term.name}: measured gain")
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_xlabel("Z [m]")
+        ax.set_ylabel("frame-mean variance / independent pixels" if isinstance(term, EmpiricalFrameMean)
+                      else "fill rate / model's")
+    ax.set_title(f"Not in the catalogue: the shape over {step.covariate} (headline error "
+                 f"{before_error_pct:.2f} % → {step.headline.error_pct:.2f} %)", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
