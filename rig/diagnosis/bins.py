@@ -51,6 +51,10 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
     excess_p = (pred.k4_m4 / var_p**2) if pred.k4_m4 is not None else np.zeros(len(d))
     beta = d.pixel_kurtosis
     usable = d.kurtosis_usable
+    # noise shared by neighbouring pixels (a frame-mean gain A > 1, rig.models.empirical) makes their variances
+    # co-vary: for a Gaussian-shaped correlation, sum over neighbours of rho^2 is about (A - 1) / 2
+    shared = 1.0 + (np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), var_p.shape) - 1.0) / 2.0
+    shared = np.maximum(shared, 1.0)
     out: dict[str, list] = {k: [] for k in ("labels", "center", "sm", "sp", "lr", "se", "km", "kp", "sk", "px")}
     for g in np.unique(groups):
         m = groups == g
@@ -65,7 +69,7 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
         # var(pooled variance) / pooled^2; pixels weighted by their predicted variance, so a bin that pools
         # stops of very different sigma gets the few degrees of freedom that dominate it
         weight = nu[m] * var_p[m]
-        var_s2 = np.sum(weight**2 * (2 / nu[m] + excess / n[m])) / np.sum(weight) ** 2
+        var_s2 = np.sum(weight**2 * (2 / nu[m] + excess / n[m]) * shared[m]) / np.sum(weight) ** 2
         out["labels"].append(labels_of.get(int(g), str(g)) if labels_of else str(g))
         out["center"].append(float((nu[m] * covariate[m]).sum() / W))
         out["sm"].append(np.sqrt(var_meas))
@@ -74,7 +78,7 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
         out["se"].append(0.5 * np.sqrt(max(var_s2, 1e-30)))
         out["km"].append(kurt)
         out["kp"].append(3 + float((n[mk] * excess_p[mk]).sum() / max(n[mk].sum(), 1e-300)))
-        out["sk"].append(se_kurt)
+        out["sk"].append(se_kurt * np.sqrt(float(np.mean(shared[m]))))
         out["px"].append(int(m.sum()))
     a = {k: np.array(v) for k, v in out.items() if k != "labels"}
     return BinComparison(out["labels"], a["center"], a["sm"], a["sp"], a["lr"], a["se"], a["km"], a["kp"], a["sk"], a["px"])

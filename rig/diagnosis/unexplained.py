@@ -17,17 +17,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
-from ..models.empirical import COVARIATES
+from ..models.empirical import COVARIATES, EmpiricalFrameMean
 from .consistency import Check
 from .scores import Headline, headline
 
 MAX_TERMS = 3
 #: sigma shapes fitted for a sigma residual
-SHAPES_TRIED = 3
+SHAPES_TRIED = 4
 #: shapes whose BIC gain is within this fraction of the best one's are equivalent
 TIE_FRACTION = 0.02
 #: when two shapes are equivalent, name them in this order (the simplest reading first)
-SIGMA_SHAPES = ("range", "radius", "position", "brightness", "incidence")
+SIGMA_SHAPES = ("range", "radius", "slant", "position", "brightness", "incidence")
 #: what each failing family asks for
 FAMILY_SHAPE = {"kurtosis": "tails", "fill rate": "fill", "frame-mean variance": "time"}
 
@@ -93,6 +93,8 @@ def _shapes_for(check: Check | None, head: Headline) -> tuple[str, list[str]]:
         cons = head.consistency
 
         def excess(cov: str) -> float:
+            if cov == "slant":  # no check of its own: the ray's length is range and radius together
+                return max(excess("range"), excess("radius"))
             c = cons.find("sigma", cov) if cons is not None else None
             return c.excess_z if c is not None else float("-inf")
 
@@ -108,11 +110,15 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
     tried: set[str] = set()
     while not current_head.within_noise and len(out.steps) < MAX_TERMS:
         cons = current_head.consistency
-        worst = cons.worst(extra=1) if cons is not None else None
-        if worst is None and current_head.sigma_within_noise:
-            break
-        family, shapes = _shapes_for(worst, current_head)
-        shapes = [s for s in shapes if s not in tried]
+        failing = cons.failing(extra=1) if cons is not None else []
+        if not current_head.sigma_within_noise and not any(c.quantity == "sigma" for c in failing):
+            failing = [None, *failing]  # the headline bins (sigma by range and radius)
+        family, shapes = "", []
+        for check in failing:  # the worst family that still has a shape to try
+            family, shapes = _shapes_for(check, current_head)
+            shapes = [s for s in shapes if s not in tried]
+            if shapes:
+                break
         if not shapes:
             break
         trials = []
@@ -122,6 +128,8 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
             if why:
                 trials.append(ShapeTrial(covariate, None, float("inf"), why))
                 continue
+            if isinstance(term, EmpiricalFrameMean):
+                term.measure(current_fit.predict(d), d)  # measured against the model it joins, not fitted
             f = (current_fit.model + term).fit(d, start=current_fit.values, errors=False)
             trials.append(ShapeTrial(covariate, f, f.bic - current_fit.bic))
         usable = [t for t in trials if t.fit is not None]

@@ -200,7 +200,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
         if best is None:
             break
         after = headline(best.fit, d)
-        if len(steps) > 1 and after.misfit > (1 - MATERIAL_FRACTION) * current.headline.misfit:
+        if after.misfit > (1 - MATERIAL_FRACTION) * current.headline.misfit:
             break  # significant, but it leaves what is wrong where it was: not the missing effect
         best.fit = with_errors(best.fit, d)
         steps.append(Step(best.fit, after, best, equivalent))

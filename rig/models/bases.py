@@ -24,7 +24,7 @@ class Base(Component):
         )
 
     def shot(self, p: dict[str, float], d: ModelData) -> np.ndarray:
-        return p["k"] ** 2 * d.z_m ** (2 * p["lambda"])
+        return p["k"] ** 2 * d.z0_m ** (2 * p["lambda"])
 
 
 power_law = Base("power_law", None, "the paper's model: k and lambda free")

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from .data import ModelData
-from .file_physics import curvature, format_limit
+from .file_physics import range_transform
 from .optimise import fit_model
 from .parameters import Param
 from .prediction import EffectStage, Prediction
@@ -93,8 +93,7 @@ class Model:
         for e in self.effects:
             if EffectStage.DISPARITY <= e.stage <= EffectStage.CENSOR:
                 e.apply(pred, values, d)
-        format_limit(pred, d)
-        curvature(pred, d)
+        range_transform(pred, d)
         for e in self.effects:
             if e.stage > EffectStage.CENSOR:
                 e.apply(pred, values, d)

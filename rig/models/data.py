@@ -32,8 +32,8 @@ from protocols.recording import Recording, StopData
 
 #: the matching window over which brightness is averaged (px)
 BRIGHTNESS_WINDOW_PX = 7
-#: side of the square of neighbouring pixels whose pooled variance standardises a pixel's fourth moment
-KURTOSIS_BLOCK_PX = 9
+#: side of the square of neighbouring pixels, centred on a pixel, whose pooled variance standardises its fourth moment
+KURTOSIS_WINDOW_PX = 7
 #: range windows of the kurtosis term and of the diagnosis (m)
 RANGE_BIN_M = 0.25
 #: rounding to the depth unit adding more than this share of the variance makes a pixel's kurtosis meaningless
@@ -134,19 +134,29 @@ class ModelData:
     # -- the distribution's shape, measured ------------------------------------------------------------
     @cached_property
     def neighbour_variance(self) -> tuple[np.ndarray, np.ndarray]:
-        """For each pixel, the variance pooled over the other pixels of its KURTOSIS_BLOCK_PX square at the
-        same stop, and its degrees of freedom (NaN where the pixel is alone or its position is not known)."""
-        block = KURTOSIS_BLOCK_PX
+        """For each pixel, the variance pooled over the other pixels of the KURTOSIS_WINDOW_PX square centred
+        on it at the same stop, and its degrees of freedom (NaN where too few, or positions unknown). Centred,
+        so a variance changing linearly across the image is the pixel's own on average."""
         if len(self) == 0 or not (np.isfinite(self.u_px).all() and np.isfinite(self.v_px).all()):
             nan = np.full(len(self), np.nan)
             return nan, nan
-        bu, bv = (self.u_px // block).astype(np.int64), (self.v_px // block).astype(np.int64)
-        key = (self.stop.astype(np.int64) * (bv.max() + 1) + bv) * (bu.max() + 1) + bu
-        _, inv = np.unique(key, return_inverse=True)
-        m2 = np.bincount(inv, weights=self.m2_m2)[inv] - self.m2_m2
-        nu = np.bincount(inv, weights=self.nu)[inv] - self.nu
+        from scipy.ndimage import uniform_filter
+
+        u, v = self.u_px.astype(np.int64), self.v_px.astype(np.int64)
+        shape = (int(v.max()) + 1, int(u.max()) + 1)
+        m2_out, nu_out = np.empty(len(self)), np.empty(len(self))
+        size = KURTOSIS_WINDOW_PX * KURTOSIS_WINDOW_PX
+        for s in np.unique(self.stop):
+            m = self.stop == s
+            m2_img, nu_img = np.zeros(shape), np.zeros(shape)
+            m2_img[v[m], u[m]] = self.m2_m2[m]
+            nu_img[v[m], u[m]] = self.nu[m]
+            m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+            nu_sum = uniform_filter(nu_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+            m2_out[m] = m2_sum[v[m], u[m]] - self.m2_m2[m]
+            nu_out[m] = np.round(nu_sum[v[m], u[m]] - self.nu[m])
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(nu > 4, m2 / nu, np.nan), np.where(nu > 4, nu, np.nan)
+            return np.where(nu_out > 4, m2_out / nu_out, np.nan), np.where(nu_out > 4, nu_out, np.nan)
 
     @cached_property
     def pixel_kurtosis(self) -> np.ndarray:
@@ -164,9 +174,22 @@ class ModelData:
             return (m4_over_sigma4 * n**2 / (n - 1) - 3 * (2 * n - 3)) / (n**2 - 3 * n + 3)
 
     # -- physics the models share -------------------------------------------------------------------
+    @cached_property
+    def z0_m(self) -> np.ndarray:
+        """Each pixel's true range, estimated from its measured mean: Z = f b / d is convex in the disparity,
+        so the mean of the samples sits above the true range, E[Z] = Z0 (1 + v / Z0^2) (eq. dist_to_disp to
+        second order). v is the variance the pixel's neighbours measure (`neighbour_variance`), not its own,
+        so a model's prediction at Z0 does not depend on the very sample variance it is compared with;
+        where it has no neighbours, its stop's pooled variance. Models predict at Z0; bins and the
+        depth grid use the measured mean."""
+        v, _ = self.neighbour_variance
+        stop_pooled = np.bincount(self.stop, weights=self.m2_m2) / np.maximum(np.bincount(self.stop, weights=self.nu), 1e-300)
+        v = np.where(np.isfinite(v), v, stop_pooled[self.stop])
+        return self.z_m / (1.0 + v / self.z_m**2)
+
     def disparity_to_range(self, var_px2: np.ndarray | float) -> np.ndarray:
         """Variance in px^2 of disparity -> m^2 of range: (Z^2 / (f b))^2 var_d (paper, eq. error_prop_unassisted)."""
-        return (self.z_m**2 / self.fb_px_m) ** 2 * var_px2
+        return (self.z0_m**2 / self.fb_px_m) ** 2 * var_px2
 
     # -- likelihood ---------------------------------------------------------------------------------
     @cached_property

@@ -81,7 +81,7 @@ class ReadNoise(Effect):
         return _need_projector(d, "read_noise") or None
 
     def apply(self, pred, p, d):
-        term = p["read_noise.ratio_at_1m"] * d.z_m**2 * pred.illum
+        term = p["read_noise.ratio_at_1m"] * d.z0_m**2 * pred.illum
         pred.image_terms = pred.image_terms + np.where(d.projector_on, term, 0.0)
 
 
@@ -176,11 +176,11 @@ class Censoring(Effect):
     explanation = "censoring: the camera discards the matches it is least sure of, so at long range the worst samples are missing"
 
     def start(self, d, pred):
-        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z_m**2
+        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z0_m**2
         return {"threshold_px": float(2.0 * np.quantile(sigma_d, 0.95))}
 
     def apply(self, pred, p, d):
-        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z_m**2
+        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z0_m**2
         c = p["censoring.threshold_px"] / sigma_d
         kept, m2, m4 = truncated_normal_moments(c)
         var = pred.var_m2
@@ -188,6 +188,7 @@ class Censoring(Effect):
         pred.var_m2 = var * m2
         pred.k4_m4 = var**2 * (m4 - 3 * m2**2) + k4_old * m2**2
         pred.fill = kept
+        pred.censor = (c, var)  # the cut and the variance before it, for the exact range transform near the format's end
 
 
 class Quantization(Effect):
@@ -241,7 +242,7 @@ class Outliers(Effect):
 
     def apply(self, pred, p, d):
         f, w = p["outliers.fraction"], p["outliers.width_px"]
-        fb, z = d.fb_px_m, d.z_m
+        fb, z = d.fb_px_m, d.z0_m
         d0 = fb / z
         # mismatches beyond the deepest range the depth format holds (65535 units) read as no data
         u_lo = np.maximum(-w, fb / (MAX_DEPTH_UNITS * d.depth_unit_m) - d0)

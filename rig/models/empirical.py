@@ -4,9 +4,10 @@ They are not physics. They describe the missing effect's shape (which the diagno
 give a calibrated model before the physics is known: `active+empirical(radius)` on the command
 line, `active + empirical("radius")` in Python.
 
-  empirical(range|radius|brightness|incidence)
+  empirical(range|radius|slant|brightness|incidence)
       sigma multiplied by exp(g(c)), g a smooth monotone-preserving curve (PCHIP) through knots
-      at the covariate's quantiles, g = 0 at the first knot (the base model's k sets the level
+      evenly spaced over the covariate's span, in ln c for range, slant and brightness (where
+      physics gives power laws, straight lines in ln c), g = 0 at the first knot (the base model's k sets the level
       there); one free parameter per further knot (ln of the sigma multiplier there)
   empirical(position)
       sigma multiplied by exp(a x + b y + c x^2 + d x y + e y^2), x, y the normalised image
@@ -15,13 +16,13 @@ line, `active + empirical("radius")` in Python.
       the excess kurtosis, a smooth curve over range through knots: heavier (or lighter) tails
       than the model's, without changing sigma; it shows in the kurtosis term of the likelihood
   empirical(time)
-      the variance over frames of the frame's mean, multiplied by exp(a + b ln(Z / 1 m)) against
+      the variance over frames of the frame's mean, multiplied by exp(a + b ln Z + c ln^2 Z) against
       what independent pixels give: noise shared by neighbouring pixels. The per-frame series
       is not part of the likelihood, so a and b are measured (least squares over the stops),
       not fitted, like the drift effect's wander
   empirical(fill)
-      the fill rate multiplied by exp(a + b ln(Z / 1 m)), measured the same way: samples lost
-      for a reason the model does not know
+      the fill rate multiplied by exp(a + b ln Z + c ln^2 Z), fitted (the fill rate by stop is part
+      of the likelihood): samples lost for a reason the model does not know
 """
 
 from __future__ import annotations
@@ -41,11 +42,14 @@ from .prediction import EffectStage, Prediction
 COVARIATES: dict[str, tuple[str, Callable[[ModelData], np.ndarray]]] = {
     "range": ("m", lambda d: d.z_m),
     "radius": ("tan of the off-axis angle", lambda d: np.sqrt(d.rho2)),
+    "slant": ("m along the ray", lambda d: d.z_m * np.sqrt(1.0 + d.rho2)),
     "brightness": ("IR DN", lambda d: d.ir),
     "incidence": ("deg", lambda d: np.degrees(np.arccos(np.clip(d.cos_inc, -1.0, 1.0)))),
 }
 SHAPES = (*COVARIATES, "position", "tails", "time", "fill")
-KNOTS = 6
+#: covariates whose shape is drawn in ln c
+LOG_COVARIATES = ("range", "slant", "brightness")
+KNOTS = 7
 
 
 def empirical(covariate: str) -> Effect:
@@ -65,12 +69,15 @@ def _smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray) -> np.ndarray:
     return PchipInterpolator(knots, values, extrapolate=False)(np.clip(x, knots[0], knots[-1]))
 
 
-def _quantile_knots(c: np.ndarray, n: int) -> np.ndarray:
+def _spaced_knots(c: np.ndarray, n: int) -> np.ndarray:
+    """n knots evenly spaced from the smallest to the largest finite value of c."""
     ok = c[np.isfinite(c)]
     if ok.size == 0:
         return np.array([0.0, 1.0])
-    knots = np.unique(np.quantile(ok, np.linspace(0.0, 1.0, n)))
-    return knots if knots.size >= 2 else np.array([knots[0], knots[0] + 1e-9])
+    lo, hi = float(ok.min()), float(ok.max())
+    if hi <= lo:
+        return np.array([lo, lo + 1e-9])
+    return np.linspace(lo, hi, n)
 
 
 class EmpiricalSigma(Effect):
@@ -95,16 +102,27 @@ class EmpiricalSigma(Effect):
             return f"{self.name}: the data span no range of {self.covariate}"
         return None
 
+    def _axis(self, c: np.ndarray) -> np.ndarray:
+        """The covariate as the shape is drawn over it: ln c for LOG_COVARIATES, c otherwise (NaN where undefined)."""
+        c = np.asarray(c, dtype=float)
+        if self.covariate in LOG_COVARIATES:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(c > 0, np.log(c), np.nan)
+        return c
+
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
         if self.knots is None:
-            self.knots = _quantile_knots(self.read(d), len(self.params) + 1)
+            axis = self._axis(self.read(d))
+            self.knots = np.exp(_spaced_knots(axis, len(self.params) + 1)) if self.covariate in LOG_COVARIATES \
+                else _spaced_knots(axis, len(self.params) + 1)
         return {q.name: 0.0 for q in self.params}
 
     def log_multiplier(self, c: np.ndarray, p: dict[str, float]) -> np.ndarray:
         """ln(sigma multiplier) at covariate values c."""
         knots = self.knots if self.knots is not None else np.linspace(0, 1, len(self.params) + 1)
         g = np.array([0.0] + [p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)]
-        return np.where(np.isfinite(c), _smooth(knots, g, np.nan_to_num(c)), 0.0)
+        x = self._axis(c)
+        return np.where(np.isfinite(x), _smooth(self._axis(knots), g, np.nan_to_num(x)), 0.0)
 
     def apply(self, pred, p, d):
         pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(self.read(d), p))
@@ -149,11 +167,11 @@ class EmpiricalTails(Effect):
 
     def start(self, d, pred):
         if self.knots is None:
-            self.knots = _quantile_knots(d.z_m, len(self.params))
+            self.knots = _spaced_knots(d.z_m, len(self.params))
         return {q.name: 0.0 for q in self.params}
 
     def excess(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
-        knots = self.knots if self.knots is not None else _quantile_knots(z_m, len(self.params))
+        knots = self.knots if self.knots is not None else _spaced_knots(z_m, len(self.params))
         e = np.array([p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)]
         return _smooth(knots, e, z_m)
 
@@ -163,38 +181,47 @@ class EmpiricalTails(Effect):
 
 
 class _MeasuredRangeGain(Effect):
-    """A gain exp(a + b ln Z) measured (not fitted) by least squares over the stops: see the subclasses."""
+    """A gain exp(a + b ln Z + c ln^2 Z) measured (not fitted) by least squares over the stops (a straight
+    line in ln Z with fewer than five stops): see the subclasses."""
 
     stage = EffectStage.TAILS
-    coefficients: tuple[float, float] = (0.0, 0.0)
+    coefficients: tuple[float, ...] = (0.0,)
 
     def gain(self, z_m: np.ndarray) -> np.ndarray:
-        a, b = self.coefficients
-        return np.exp(a + b * np.log(z_m))
+        lz = np.log(np.asarray(z_m, dtype=float))
+        return np.exp(sum(c * lz**i for i, c in enumerate(self.coefficients)))
 
     def _measure(self, z: np.ndarray, log_ratio: np.ndarray, weight: np.ndarray) -> None:
-        if len(z) >= 2 and np.ptp(np.log(z)) > 0:
-            b, a = np.polyfit(np.log(z), log_ratio, 1, w=np.sqrt(weight))
+        degree = 2 if len(z) >= 5 else 1
+        if len(z) > degree and np.ptp(np.log(z)) > 0:
+            self.coefficients = tuple(float(c) for c in np.polyfit(np.log(z), log_ratio, degree, w=np.sqrt(weight))[::-1])
         else:
-            a, b = (float(np.average(log_ratio, weights=weight)) if len(z) else 0.0), 0.0
-        self.coefficients = (float(a), float(b))
+            self.coefficients = ((float(np.average(log_ratio, weights=weight)) if len(z) else 0.0),)
 
 
 class EmpiricalFrameMean(_MeasuredRangeGain):
-    """Empirical noise shared by neighbouring pixels: the frame mean's variance exp(a + b ln Z) times what
-    independent pixels give, measured from each stop's per-frame series."""
+    """Empirical noise shared by neighbouring pixels: the frame mean's variance exp(a + b ln Z + c ln^2 Z) times
+    what independent pixels give, measured (not fitted: the per-frame series is not in the likelihood) from each
+    stop's series against a prediction, once (`measure`; `start` measures against the model it joins)."""
 
     name = "empirical(time)"
     covariate = "time"
     signature = "the frame's mean depth wanders more (or less) than independent pixels allow"
     explanation = "empirical correlation between pixels: neighbours' errors move together"
+    measured = False
 
     def applicable(self, d):
         if d.stops is None or not np.isfinite(d.stops.series_var_inv2).any():
             return "empirical(time): the recording has no per-frame series"
         return None
 
-    def apply(self, pred, p, d):
+    def start(self, d, pred):
+        if not self.measured:
+            self.measure(pred, d)
+        return {}
+
+    def measure(self, pred: Prediction, d: ModelData) -> None:
+        """Set the gain from the per-frame series of every stop against the prediction `pred`."""
         t = d.stops
         common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), d.z_m.shape)
         independent = (pred.var_m2 - common * d.z_m**4) / d.z_m**4
@@ -211,29 +238,33 @@ class EmpiricalFrameMean(_MeasuredRangeGain):
             ratio.append(np.log(excess / expected_independent))
             weight.append((frames - 1) / 2.0)
         self._measure(np.array(z), np.array(ratio), np.array(weight))
+        self.measured = True
+
+    def apply(self, pred, p, d):
         pred.frame_mean_gain = self.gain(d.z_m)
 
 
-class EmpiricalFill(_MeasuredRangeGain):
-    """Empirical sample loss: the fill rate exp(a + b ln Z) times the model's, measured stop by stop."""
+class EmpiricalFill(Effect):
+    """Empirical sample loss: the fill rate times exp(a + b ln Z + c ln^2 Z), fitted (the fill rate by stop is
+    part of the likelihood)."""
 
     name = "empirical(fill)"
     covariate = "fill"
+    stage = EffectStage.TAILS
+    params = (Param("a", 0.0, -5.0, 1.0, "ln", "ln of the fill multiplier at 1 m"),
+              Param("b", 0.0, -10.0, 10.0, "ln/ln m", "its slope in ln Z"),
+              Param("c", 0.0, -10.0, 10.0, "ln/ln^2 m", "its curvature in ln Z"))
     signature = "the fill rate differs from the model's"
     explanation = "empirical sample loss: the camera drops samples for a reason the model does not know"
 
+    def gain(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
+        lz = np.log(np.asarray(z_m, dtype=float))
+        n = self.name
+        return np.exp(p[f"{n}.a"] + p[f"{n}.b"] * lz + p[f"{n}.c"] * lz * lz)
+
     def apply(self, pred, p, d):
         fill = pred.fill if pred.fill is not None else np.ones(len(d))
-        z, ratio, weight = [], [], []
-        for s in np.unique(d.stop):
-            m = d.stop == s
-            measured, predicted = float(np.mean(d.fill[m])), float(np.mean(fill[m]))
-            if measured > 0 and predicted > 0:
-                z.append(float(np.median(d.z_m[m])))
-                ratio.append(np.log(measured / predicted))
-                weight.append(float(m.sum()))
-        self._measure(np.array(z), np.array(ratio), np.array(weight))
-        pred.fill = np.clip(fill * self.gain(d.z_m), 0.0, 1.0)
+        pred.fill = np.clip(fill * self.gain(d.z_m, p), 0.0, 1.0)
 
 
 def is_empirical(e: Component) -> bool:

@@ -1,5 +1,12 @@
 """What every model includes because the depth file fixes it: the deepest range a uint16 depth
-image holds, and the curvature of Z = f b / d (paper, eq. dist_to_disp)."""
+image holds, and the curvature of Z = f b / d (paper, eq. dist_to_disp).
+
+Far from the format's end (the usual case) both are corrections in closed form: the cut as a
+one-sided truncation of a normal disparity error, the curvature to second order. Where the
+noise reaches the end (within NEAR_LIMIT_SIGMA standard deviations), the two interact, and
+`range_transform` computes the range's moments exactly instead: by Gauss-Legendre quadrature
+of Z = f b / (d0 + sigma_d x) over the normal x, cut below at the format's end and, if the
+camera censors, at +-c."""
 
 from __future__ import annotations
 
@@ -14,36 +21,50 @@ from .prediction import Prediction
 #: the largest value a uint16 depth image holds; 0 means no data
 MAX_DEPTH_UNITS = 65535
 SQRT_2PI = math.sqrt(2 * math.pi)
+#: pixels whose disparity error reaches the format's end within this many standard deviations get the exact transform
+NEAR_LIMIT_SIGMA = 6.0
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(64)
 
 
-def format_limit(pred: Prediction, d: ModelData) -> None:
-    """Samples beyond 65535 depth units read as no data: the disparity error is cut below
-    a = (f b / Z_max - f b / Z) / sigma_d. For N(0,1) kept above a: lam = phi(a) / (1 - Phi(a)),
-    var = 1 + a lam - lam^2, kept fraction 1 - Phi(a); the fourth cumulant from the kept
-    distribution's raw moments, E[x^k | x > a] = a^(k-1) lam + (k - 1) E[x^(k-2) | x > a]."""
+def range_transform(pred: Prediction, d: ModelData) -> None:
+    """The format's end and the curvature of Z = f b / d: closed-form corrections far from the end,
+    exact moments by quadrature near it (see the module docstring)."""
     z_max = MAX_DEPTH_UNITS * d.depth_unit_m
-    sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z_m**2
-    a = (d.fb_px_m / z_max - d.fb_px_m / d.z_m) / sigma_d
-    near = a > -8.0  # elsewhere the cut is more than 8 sigma away: nothing is lost
+    var_lin = pred.var_m2
+    base_var = pred.censor[1] if pred.censor is not None else var_lin
+    sigma_d = np.sqrt(base_var) * d.fb_px_m / d.z0_m**2
+    a = (d.fb_px_m / z_max - d.fb_px_m / d.z0_m) / sigma_d
+    near = a > -NEAR_LIMIT_SIGMA
     if not near.any():
+        curvature(pred, d)
         return
-    an = np.minimum(a[near], 8.0)
-    kept = ndtr(-an)
-    lam = np.exp(-0.5 * an * an) / SQRT_2PI / np.maximum(kept, 1e-300)
-    m1, m2 = lam, 1 + an * lam
-    m3 = an**2 * lam + 2 * m1
-    m4 = an**3 * lam + 3 * m2
-    var = np.maximum(m2 - m1**2, 1e-6)
-    mu4 = m4 - 4 * m3 * m1 + 6 * m2 * m1**2 - 3 * m1**4
-    factor = np.ones_like(a)
-    factor[near] = var
-    pred.var_m2 = pred.var_m2 * factor
-    excess = np.zeros_like(a)
-    excess[near] = mu4 / var**2 - 3
-    k4 = excess * pred.var_m2**2
-    pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 * factor**2 + k4
-    fill = np.ones_like(a)
-    fill[near] = kept
+    far = ~near
+    var_out, k4_out = var_lin.copy(), None
+    rel = var_lin[far] / d.z0_m[far] ** 2
+    var_out[far] = var_lin[far] * (1.0 + 8.0 * rel)
+    k4_far = 72.0 * rel * var_lin[far] ** 2
+    k4_out = np.zeros_like(var_lin) if pred.k4_m4 is None else np.broadcast_to(pred.k4_m4, var_lin.shape).copy()
+    k4_out[far] = k4_out[far] + k4_far
+    # near the end: quadrature over x in [lo, hi], x the disparity error in its own standard deviations
+    c = pred.censor[0][near] if pred.censor is not None else np.full(int(near.sum()), 8.0)
+    lo, hi = np.maximum(a[near], -c), np.minimum(c, 8.0)
+    kept_before = (2 * ndtr(c) - 1) if pred.censor is not None else np.ones(int(near.sum()))
+    half = 0.5 * (hi - lo)[:, None]
+    x = 0.5 * (hi + lo)[:, None] + half * _NODES[None, :]
+    w = half * _WEIGHTS[None, :] * np.exp(-0.5 * x * x) / SQRT_2PI
+    mass = np.maximum(w.sum(axis=1), 1e-300)
+    d0 = d.fb_px_m / d.z0_m[near]
+    z = d.fb_px_m / np.maximum(d0[:, None] + sigma_d[near][:, None] * x, 1e-12)
+    mean = (w * z).sum(axis=1) / mass
+    dev = z - mean[:, None]
+    var_near = (w * dev**2).sum(axis=1) / mass
+    mu4 = (w * dev**4).sum(axis=1) / mass
+    var_out[near] = var_near
+    k4_out[near] = mu4 - 3 * var_near**2
+    pred.var_m2 = var_out
+    pred.k4_m4 = k4_out
+    fill = np.ones_like(var_lin)
+    fill[near] = mass / kept_before
     pred.fill = (pred.fill if pred.fill is not None else 1.0) * fill
 
 
@@ -56,7 +77,7 @@ def curvature(pred: Prediction, d: ModelData) -> None:
     cumulant 72 e^3 Z0^4 to leading order (48 from the x, x^2 terms, 24 from x, x^3), an excess
     kurtosis of 72 e: 0.016 at a 1.5 % error."""
     var_lin = pred.var_m2
-    rel = var_lin / d.z_m**2
+    rel = var_lin / d.z0_m**2
     pred.var_m2 = var_lin * (1.0 + 8.0 * rel)
     k4 = 72.0 * rel * var_lin**2
     pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4

@@ -53,6 +53,8 @@ class Prediction:
     common_inv2: np.ndarray | float = 0.0
     #: the variance over frames of the frame's mean, against what independent pixels give (1: independent)
     frame_mean_gain: np.ndarray | float = 1.0
+    #: censoring's cut (in standard deviations of the disparity error) and the variance before it, if censored
+    censor: tuple[np.ndarray, np.ndarray] | None = None
 
     def add(self, var_m2: np.ndarray | float, k4_m4: np.ndarray | float | None = None) -> None:
         """Add an independent component of variance (and fourth cumulant)."""

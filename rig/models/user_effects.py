@@ -57,7 +57,7 @@ class EffectFileError(ValueError):
 class Covariates:
     """What a user effect may depend on, one value per pixel-stop.
 
-    z_m: range (m); rho2, rho: squared and plain normalised radius from the principal point
+    z_m: range (m; the true range, `ModelData.z0_m`, not the samples' mean, which sits a little beyond it); rho2, rho: squared and plain normalised radius from the principal point
     (tan of the off-axis angle); cos_off_axis = 1 / sqrt(1 + rho2); x_norm, y_norm: (u - cx) / fx,
     (v - cy) / fy; u_px, v_px: pixel column and row; cos_incidence, incidence_deg: the angle at
     which the ray meets the wall (plane fitted per stop); brightness_dn: mean IR brightness
@@ -71,7 +71,7 @@ class Covariates:
 
     @property
     def z_m(self) -> np.ndarray:
-        return self.data.z_m
+        return self.data.z0_m
 
     @property
     def rho2(self) -> np.ndarray:

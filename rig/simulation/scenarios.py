@@ -9,8 +9,9 @@ catalogue effects (`slant_range+noise_floor`) or an effect the model catalogue d
 
 The experiment is the paper's perpendicular one with the projector on (night-time, so any
 room light is the hidden `ambient` effect), 11 stops of 0.5-3.0 m, with a few projector-off
-frames per stop so ambient light can be measured. The depth unit is 0.05 mm, fine enough that
-rounding is below the noise, except where a coarse depth unit is the hidden effect.
+frames per stop so ambient light can be measured. The depth unit is 0.06 mm, fine enough that
+rounding is below the noise (except where a coarse depth unit is the hidden effect), and coarse
+enough that the deepest range a uint16 holds (3.93 m) is far beyond the last stop (3.0 m).
 
 The simulator (fakes/) samples the physics; the models (rig/models/) predict it analytically;
 the two share no code. `EXPECTED` is the one place where they meet: what the diagnosis should
@@ -71,9 +72,9 @@ PAIRS = ("slant_range+noise_floor", "incidence+outliers", "drift+censoring")
 #: residual they leave may rightly be said to follow ("tails": the distribution's shape; "time": the frame mean)
 NOT_IN_CATALOGUE: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], tuple[str, ...]]] = {
     "beam_falloff": (lambda r: {"n": r.uniform(3.0, 6.0)}, ("radius",)),
-    "light_falloff": (lambda r: {"p": r.uniform(2.5, 3.5)}, ("range", "radius")),
+    "light_falloff": (lambda r: {"p": r.uniform(2.5, 3.5)}, ("slant", "brightness")),
     "noisy_confidence": (lambda r: {"threshold_px": r.uniform(0.2, 0.3), "score_noise_px": r.uniform(0.06, 0.12)},
-                         ("range",)),
+                         ("range", "fill")),
     "correlated_noise": (lambda r: {"sigma_px": r.uniform(0.03, 0.06), "length_px": r.uniform(16.0, 32.0)}, ("time",)),
     "scale_mixture": (lambda r: {"fraction": r.uniform(0.05, 0.1), "factor": r.uniform(3.0, 4.0)}, ("tails",)),
 }
@@ -104,7 +105,7 @@ def expected(effect: str) -> Expected:
     return Expected(() if effect == "none" else (MODEL_EFFECT_FOR[effect],))
 
 
-FINE_DEPTH_UNIT_MM = 0.05
+FINE_DEPTH_UNIT_MM = 0.06
 
 
 @dataclass
