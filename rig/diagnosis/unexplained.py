@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
-from ..models.empirical import COVARIATES, EmpiricalFrameMean
+from ..models.empirical import COVARIATES, EmpiricalFrameMean, is_empirical
 from .consistency import Check
 from .scores import Headline, headline
 
@@ -130,7 +130,8 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
                 continue
             if isinstance(term, EmpiricalFrameMean):
                 term.measure(current_fit.predict(d), d)  # measured against the model it joins, not fitted
-            f = (current_fit.model + term).fit(d, start=current_fit.values, errors=False)
+            # only the shape's own parameters free: a quick, fair comparison of the shapes
+            f = (current_fit.model + term).fit(d, start=current_fit.values, errors=False, hold=frozenset(current_fit.values))
             trials.append(ShapeTrial(covariate, f, f.bic - current_fit.bic))
         usable = [t for t in trials if t.fit is not None]
         if not usable:
@@ -143,7 +144,16 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
             tried.update(SIGMA_SHAPES)  # one sigma shape per diagnosis: a second would fit the first's noise
         tried.add(chosen.covariate)
         term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(f"empirical({chosen.covariate})")]
-        current_fit = with_errors(chosen.fit, d)
+        # then refit with the model's own parameters free too (earlier empirical terms held: they describe, not explain)
+        earlier = frozenset(n for e in current_fit.model.effects if is_empirical(e) for n in chosen.fit.values
+                            if n.startswith(e.name + "."))
+        current_fit = with_errors(chosen.fit.model.fit(d, start=chosen.fit.values, errors=False, hold=earlier), d)
         current_head = headline(current_fit, d)
         out.steps.append(EmpiricalStep(family, chosen.covariate, term, current_fit, current_head, trials))
+    if len(out.steps) > 1 and not current_head.within_noise:
+        # the terms were fitted one at a time; a last refit with everything free lets each settle with the others
+        joint = with_errors(current_fit.model.fit(d, start=current_fit.values, errors=False), d)
+        if joint.loglik > current_fit.loglik:
+            last = out.steps[-1]
+            last.fit, last.headline = joint, headline(joint, d)
     return out

@@ -131,7 +131,7 @@ class Diagnosis:
             return s + self._unexplained_sentence()
         first = self.steps[1].added
         e = first.effect
-        s = f"Most likely missing: {e.name}. {e.signature[0].upper() + e.signature[1:]}: {e.explanation}."
+        s = f"Most likely missing: {e.name}. {e.signature[0].upper() + e.signature[1:]}: {e.explanation.rstrip('.')}."
         others = [c.effect.name for c in self.steps[1].equivalent if c is not first]
         if others:
             s += (f" ({', '.join(others)} fits about as well; {e.name} is preferred because it "
@@ -171,8 +171,10 @@ def _shape_sentence(h: Headline) -> str:
     if c is None or c.p_value >= h.consistency.threshold_with(1):
         return ""
     i = c.worst()
+    kind = ("heavier tails than the model's (mismatches, a mixture of noise levels)" if c.measured[i] > c.predicted[i]
+            else "lighter tails than the model's (samples cut off, as censoring does)")
     return (f" The distribution's shape is wrong too: kurtosis {c.measured[i]:.2f} measured against "
-            f"{c.predicted[i]:.2f} predicted at {c.labels[i]} (+/- {c.se[i]:.2f}); heavy tails are an outliers-type effect.")
+            f"{c.predicted[i]:.2f} predicted at {c.labels[i]} (+/- {c.se[i]:.2f}): {kind}.")
 
 
 def default_model(d: ModelData) -> Model:

@@ -109,6 +109,8 @@ class Model:
             if why:
                 raise ValueError(why)
 
-    def fit(self, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True) -> "ModelFit":
-        """Maximum likelihood (rig.models.optimise); `errors=False` skips the standard errors."""
-        return fit_model(self, d, start, errors=errors)
+    def fit(self, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
+            hold: frozenset[str] = frozenset()) -> "ModelFit":
+        """Maximum likelihood (rig.models.optimise); `errors=False` skips the standard errors; parameters
+        in `hold` stay at their `start` values."""
+        return fit_model(self, d, start, errors=errors, hold=hold)

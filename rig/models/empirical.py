@@ -13,7 +13,7 @@ line, `active + empirical("radius")` in Python.
       sigma multiplied by exp(a x + b y + c x^2 + d x y + e y^2), x, y the normalised image
       coordinates (u - cx) / fx, (v - cy) / fy
   empirical(tails)
-      the excess kurtosis, a smooth curve over range through knots: heavier (or lighter) tails
+      the excess kurtosis, a smooth curve over ln Z through knots: heavier (or lighter) tails
       than the model's, without changing sigma; it shows in the kurtosis term of the likelihood
   empirical(time)
       the variance over frames of the frame's mean, multiplied by exp(a + b ln Z + c ln^2 Z) against
@@ -21,8 +21,8 @@ line, `active + empirical("radius")` in Python.
       is not part of the likelihood, so a and b are measured (least squares over the stops),
       not fitted, like the drift effect's wander
   empirical(fill)
-      the fill rate multiplied by exp(a + b ln Z + c ln^2 Z), fitted (the fill rate by stop is part
-      of the likelihood): samples lost for a reason the model does not know
+      the fill rate multiplied by exp(f(ln Z)), f a smooth curve through knots, fitted (the fill
+      rate by stop is part of the likelihood): samples lost for a reason the model does not know
 """
 
 from __future__ import annotations
@@ -50,6 +50,8 @@ SHAPES = (*COVARIATES, "position", "tails", "time", "fill")
 #: covariates whose shape is drawn in ln c
 LOG_COVARIATES = ("range", "slant", "brightness")
 KNOTS = 7
+#: knots of the tails and fill shapes over ln Z
+RANGE_KNOTS = 7
 
 
 def empirical(covariate: str) -> Effect:
@@ -151,32 +153,37 @@ class EmpiricalPosition(Effect):
         pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(d.x_norm, d.y_norm, p))
 
 
-class EmpiricalTails(Effect):
-    """An empirical excess kurtosis over range, added to the model's (sigma unchanged)."""
+class _RangeShape(Effect):
+    """A smooth curve over ln Z through RANGE_KNOTS knots evenly spaced over the data's ranges (PCHIP)."""
 
-    covariate = "tails"
     stage = EffectStage.TAILS
-
-    def __init__(self, knots: int = KNOTS):
-        self.name = "empirical(tails)"  # type: ignore[misc]
-        self.knots: np.ndarray | None = None
-        self.params = tuple(  # type: ignore[misc]
-            Param(f"e{i}", 0.0, -1.5, 50.0, "1", f"excess kurtosis at range knot {i}") for i in range(knots))
-        self.signature = "the measured kurtosis differs from the model's"  # type: ignore[misc]
-        self.explanation = "empirical tails: the errors' distribution is not the model's shape"  # type: ignore[misc]
+    knots: np.ndarray | None = None
 
     def start(self, d, pred):
         if self.knots is None:
-            self.knots = _spaced_knots(d.z_m, len(self.params))
-        return {q.name: 0.0 for q in self.params}
+            self.knots = _spaced_knots(np.log(d.z0_m), len(self.params))
+        return {q.name: q.value for q in self.params}
+
+    def curve(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
+        lz = np.log(np.asarray(z_m, dtype=float))
+        knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
+        return _smooth(knots, np.array([p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)], lz)
+
+
+class EmpiricalTails(_RangeShape):
+    """An empirical excess kurtosis over range, added to the model's (sigma unchanged)."""
+
+    name = "empirical(tails)"
+    covariate = "tails"
+    params = tuple(Param(f"e{i}", 0.0, -1.5, 50.0, "1", f"excess kurtosis at range knot {i}") for i in range(RANGE_KNOTS))
+    signature = "the measured kurtosis differs from the model's"
+    explanation = "empirical tails: the errors' distribution is not the model's shape"
 
     def excess(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
-        knots = self.knots if self.knots is not None else _spaced_knots(z_m, len(self.params))
-        e = np.array([p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)]
-        return _smooth(knots, e, z_m)
+        return np.maximum(self.curve(z_m, p), -1.5)
 
     def apply(self, pred, p, d):
-        k4 = self.excess(d.z_m, p) * pred.var_m2**2
+        k4 = self.excess(d.z0_m, p) * pred.var_m2**2
         pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4
 
 
@@ -244,28 +251,24 @@ class EmpiricalFrameMean(_MeasuredRangeGain):
         pred.frame_mean_gain = self.gain(d.z_m)
 
 
-class EmpiricalFill(Effect):
-    """Empirical sample loss: the fill rate times exp(a + b ln Z + c ln^2 Z), fitted (the fill rate by stop is
-    part of the likelihood)."""
+class EmpiricalFill(_RangeShape):
+    """Empirical sample loss: the fill rate times exp(f(ln Z)), fitted (the fill rate by stop is part of the
+    likelihood)."""
 
     name = "empirical(fill)"
     covariate = "fill"
-    stage = EffectStage.TAILS
-    params = (Param("a", 0.0, -5.0, 1.0, "ln", "ln of the fill multiplier at 1 m"),
-              Param("b", 0.0, -10.0, 10.0, "ln/ln m", "its slope in ln Z"),
-              Param("c", 0.0, -10.0, 10.0, "ln/ln^2 m", "its curvature in ln Z"))
+    params = tuple(Param(f"f{i}", 0.0, -5.0, 0.5, "ln", f"ln of the fill multiplier at range knot {i}")
+                   for i in range(RANGE_KNOTS))
     signature = "the fill rate differs from the model's"
     explanation = "empirical sample loss: the camera drops samples for a reason the model does not know"
 
     def gain(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
-        lz = np.log(np.asarray(z_m, dtype=float))
-        n = self.name
-        return np.exp(p[f"{n}.a"] + p[f"{n}.b"] * lz + p[f"{n}.c"] * lz * lz)
+        return np.exp(self.curve(z_m, p))
 
     def apply(self, pred, p, d):
         fill = pred.fill if pred.fill is not None else np.ones(len(d))
-        pred.fill = np.clip(fill * self.gain(d.z_m, p), 0.0, 1.0)
+        pred.fill = np.clip(fill * self.gain(d.z0_m, p), 0.0, 1.0)
 
 
 def is_empirical(e: Component) -> bool:
-    return isinstance(e, (EmpiricalSigma, EmpiricalPosition, EmpiricalTails, _MeasuredRangeGain))
+    return isinstance(e, (EmpiricalSigma, EmpiricalPosition, _RangeShape, _MeasuredRangeGain))

@@ -51,9 +51,11 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return h
 
 
-def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True) -> ModelFit:
+def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
+              hold: frozenset[str] = frozenset()) -> ModelFit:
     """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao), unless
-    `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later)."""
+    `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later).
+    Parameters named in `hold` stay at their `start` values (a quick conditional fit)."""
     model.check(d)
     values = {n: p.value for n, p in model.parameters()}
     # the base alone has a closed-form fit (the paper's): start there
@@ -67,7 +69,7 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
         partial = partial + e
     if start:
         values.update({k: v for k, v in start.items() if k in values})
-    free = model.free()
+    free = [(n, p) for n, p in model.free() if n not in hold]
     names = [n for n, _ in free]
     # k enters as log k: its scale varies over decades
     def unpack(y: np.ndarray) -> dict[str, float]:
@@ -89,13 +91,17 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
         return -ll / scale if np.isfinite(ll) else 1e30
 
     starts = [pack(values)]
-    if model.effects and model.base.lam is None:
+    if model.effects and model.base.lam is None and "lambda" not in hold:
         # effects trade off against lambda: also start from the physical exponent (paper: 3 with
         # the projector on, 2 off) with k refitted for it
         lam_phys = 3.0 if d.projector_on.mean() > 0.5 else 2.0
         alt = dict(values, **{"lambda": lam_phys, "k": power_law_mle(d.z_m, d.m2_m2, d.n, lam=lam_phys).k})
         starts.append(pack(alt))
     res = None
+    if not free:
+        ll = model.loglik(values, d)
+        return ModelFit(model, values, {}, ll, len(d), d.n_samples, True, "nothing to fit", dof=float(d.nu.sum()),
+                        z_range_m=(float(d.z_m.min()), float(d.z_m.max())))
     with np.errstate(all="ignore"):
         for y0 in starts:
             r = minimize(objective, y0, method="L-BFGS-B", options={"maxiter": 500, "ftol": 1e-15, "gtol": 1e-10})

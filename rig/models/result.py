@@ -131,9 +131,10 @@ class ModelFit:
             if p.vary:
                 se = self.errors.get(name, float("nan"))
                 at = "  (at bound)" if (abs(v - p.min) < 1e-6 * max(1, abs(p.min)) or abs(v - p.max) < 1e-6 * max(1, abs(p.max))) else ""
-                lines.append(f"    {name:<{width}} = {v:.6g} +/- {se:.2g} {p.unit}{at}".rstrip())
+                unit = "" if p.unit == "1" else p.unit
+                lines.append(f"    {name:<{width}} = {v:.6g} +/- {se:.2g} {unit}{at}".rstrip())
             else:
-                lines.append(f"    {name:<{width}} = {v:.6g} {p.unit}".rstrip() + " (fixed)")
+                lines.append(f"    {name:<{width}} = {v:.6g} {'' if p.unit == '1' else p.unit}".rstrip() + " (fixed)")
         if not self.lam_fixed:
             lines.append(f"    corr(k, lambda) = {self.corr:+.3f}")
         for e in self.model.effects:

@@ -153,7 +153,7 @@ class UserEffect(Effect):
         self.params = tuple(params)  # type: ignore[misc]
         self.signature = signature  # type: ignore[misc]
         doc = (fn.__doc__ or "").strip().splitlines()
-        self.explanation = doc[0] if doc else f"{self.name} (written by the user)"  # type: ignore[misc]
+        self.explanation = doc[0].rstrip(".") if doc else f"{self.name} (written by the user)"  # type: ignore[misc]
         self.__doc__ = fn.__doc__ or self.explanation
         self.source = source
         _check_definition(self)

@@ -14,7 +14,8 @@ from ..diagnosis.bins import compare_bins  # noqa: E402
 from ..diagnosis.residuals import _subset  # noqa: E402
 from ..diagnosis.unexplained import EmpiricalStep  # noqa: E402
 from ..models import ModelData, ModelFit  # noqa: E402
-from ..models.empirical import COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition, EmpiricalSigma, EmpiricalTails  # noqa: E402
+from ..models.empirical import (COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition,  # noqa: E402
+                                EmpiricalSigma, EmpiricalTails)
 
 QUANTILE_BINS = 12
 

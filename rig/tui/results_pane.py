@@ -11,7 +11,7 @@ from textual.widgets import Input, Label, Static
 from protocols.recording import RecordingError
 
 from .results_service import ResultsSession
-from .widgets import BinTable, EffectList, FitTable, HeadlineChart, StatusLine
+from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine
 
 
 class ResultsPane(Vertical):
@@ -32,6 +32,10 @@ class ResultsPane(Vertical):
         with Horizontal(classes="field"):
             yield Label("Recording", classes="label")
             yield Input(self._recording, id="recording-path", compact=True, placeholder="path to a recording (.h5)")
+        with Horizontal(classes="field"):
+            yield Label("Effects file", classes="label")
+            yield Input("", id="effects-path", compact=True,
+                        placeholder="optional: your effects (.py with @effect, docs/effects.md)")
         yield StatusLine("o opens the recording", id="results-status")
         with Horizontal(classes="columns"):
             with Vertical(classes="left"):
@@ -41,6 +45,7 @@ class ResultsPane(Vertical):
                 yield Label("effect          dBIC (* significant)", id="effects-head", markup=False)
                 yield EffectList(id="effects")
                 yield HeadlineChart(id="headline-chart")
+                yield ShapePlot(id="shape-plot")
                 with VerticalScroll(id="summary-box"):
                     yield Static("", id="summary")
 
@@ -51,6 +56,10 @@ class ResultsPane(Vertical):
     @property
     def path(self) -> str:
         return self.query_one("#recording-path", Input).value.strip()
+
+    @property
+    def effects_file(self) -> str:
+        return self.query_one("#effects-path", Input).value.strip()
 
     def set_path(self, path: str) -> None:
         self.query_one("#recording-path", Input).value = path
@@ -81,13 +90,13 @@ class ResultsPane(Vertical):
         self.busy = True
         self.status.show(text, "busy")
         self.app.refresh_bindings()
-        self._work(what, self.path, effects or [])
+        self._work(what, self.path, effects or [], self.effects_file)
 
     @work(thread=True, exclusive=True, group="results")
-    def _work(self, what: str, path: str, effects: list[str]) -> None:
+    def _work(self, what: str, path: str, effects: list[str], effects_file: str) -> None:
         try:
             if what == "open":
-                self.session.open(path)
+                self.session.open(path, effects_file)
             else:
                 self.session.refit(effects)
         except (RecordingError, ValueError, OSError) as e:
@@ -107,6 +116,7 @@ class ResultsPane(Vertical):
         self.query_one(EffectList).show_rows(s.candidate_rows())
         self.query_one(HeadlineChart).show_history(s.history)
         self.query_one("#summary", Static).update(s.summary())
+        self.query_one(ShapePlot).show_shape(s.shape())
         h = s.history[-1]
         if m.what == "open":
             name = s.path.name if s.path else ""

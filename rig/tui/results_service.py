@@ -1,9 +1,11 @@
 """The Results screen's work, without Textual: open a recording, diagnose it, refit with effects.
 
 Everything is `rig diagnose`'s: `ModelData.from_recording`, `diagnose` (fit, ranked candidate
-effects, headline error, residuals by range and radius, plain-language summary). Adding an
-effect is `diagnose(data, base + effects)`; the history keeps the headline error after each
-change so the screen can chart it.
+effects, the path, headline error, residuals by range and radius, plain-language summary, and
+when the catalogue leaves something unexplained, the empirical shape of what remains). Effects
+come from the built-in catalogue, installed plugins and an optional effects file the user
+wrote (`rig.models.Catalogue`). Adding an effect is `diagnose(data, base + effects)`; the
+history keeps the headline error after each change so the screen can chart it.
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from rig.diagnosis import Diagnosis, Headline, default_model, diagnose
-from rig.models import EFFECTS, Model, ModelData
+from rig.models import Catalogue, Model, ModelData
+from rig.models.empirical import COVARIATES, EmpiricalSigma
 
 
 @dataclass
@@ -55,6 +58,17 @@ class CandidateRow:
         return f"{self.effect:<13} {self.dbic:>9.1f}{' *' if self.significant else ''}"
 
 
+@dataclass
+class ShapeCurve:
+    """What the catalogue does not explain, as a curve: the sigma multiplier along a covariate."""
+
+    covariate: str
+    unit: str
+    x: list[float]
+    multiplier: list[float]
+    title: str
+
+
 class ResultsSession:
     """One recording, its data and its diagnosis as the operator adds and removes effects."""
 
@@ -64,11 +78,22 @@ class ResultsSession:
         self.diagnosis: Diagnosis | None = None
         self.base: Model | None = None
         self.history: list[HistoryEntry] = []
+        self.catalogue = Catalogue.default()
+        self.effects_file = ""
 
-    def open(self, path: str | Path) -> Diagnosis:
+    def load_effects(self, path: str) -> None:
+        """Use the built-in effects and those of the file `path` (none: "")."""
+        catalogue = Catalogue.default()
+        if path:
+            catalogue = catalogue.with_file(path)  # EffectFileError (a ValueError) says what is wrong in one line
+        self.catalogue, self.effects_file = catalogue, path
+
+    def open(self, path: str | Path, effects_file: str | None = None) -> Diagnosis:
         path = Path(path)
+        if effects_file is not None and effects_file != self.effects_file:
+            self.load_effects(effects_file)
         data = ModelData.from_recording(path)
-        diag = diagnose(data, source=str(path), second_round=False)
+        diag = diagnose(data, source=str(path), catalogue=self.catalogue)
         self.path, self.data, self.diagnosis = path, data, diag
         self.base = default_model(data)
         self.history = [HistoryEntry(diag.model_fit.model.name, diag.model_fit.model.name, diag.model_headline)]
@@ -83,14 +108,13 @@ class ResultsSession:
         """Fit the base model plus `effects` and diagnose what is still missing."""
         if self.data is None or self.base is None:
             raise ValueError("no recording is open; press o to open one")
-        unknown = [e for e in effects if e not in EFFECTS]
+        known = self.catalogue.effects
+        unknown = [e for e in effects if e not in known and not e.startswith("empirical(")]
         if unknown:
-            raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(EFFECTS)}")
+            raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(known)}")
         before = self.effects
-        model = self.base
-        for name in effects:
-            model = model + EFFECTS[name]
-        diag = diagnose(self.data, model, source=str(self.path), second_round=False)
+        model = self.catalogue.parse("+".join([self.base.name, *effects]))
+        diag = diagnose(self.data, model, source=str(self.path), catalogue=self.catalogue, max_steps=0)
         self.diagnosis = diag
         added = [e for e in effects if e not in before]
         removed = [e for e in before if e not in effects]
@@ -139,3 +163,17 @@ class ResultsSession:
         if d is None:
             return ""
         return d.summary()
+
+    def shape(self) -> ShapeCurve | None:
+        """The empirical shape of what the catalogue leaves unexplained (a sigma shape), if any."""
+        d = self.diagnosis
+        u = d.unexplained if d is not None else None
+        step = next((s for s in u.steps if isinstance(s.term, EmpiricalSigma)), None) if u is not None else None
+        if step is None or self.data is None:
+            return None
+        unit, read = COVARIATES[step.covariate]
+        c = read(self.data)
+        x = np.linspace(float(np.nanmin(c)), float(np.nanmax(c)), 40)
+        m = np.exp(step.term.log_multiplier(x, step.fit.values))
+        title = f"not explained: sigma x shape over {step.covariate} ({step.headline.error_pct:.2f} % after)"
+        return ShapeCurve(step.covariate, unit, [float(v) for v in x], [float(v) for v in m], title)

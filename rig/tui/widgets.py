@@ -14,7 +14,7 @@ from textual.widgets import DataTable, Label, ProgressBar, SelectionList, Static
 from textual_plotext import PlotextPlot
 
 from .live import RunState, format_duration
-from .results_service import BinRow, CandidateRow, FitRow, HistoryEntry
+from .results_service import BinRow, CandidateRow, FitRow, HistoryEntry, ShapeCurve
 
 
 class StatusLine(Static):
@@ -102,6 +102,29 @@ class HeadlineChart(Static):
         last = history[-1].headline
         t.add_row("noise alone", "", f"{last.noise_pct:6.2f} %")
         self.update(t)
+
+
+class ShapePlot(PlotextPlot):
+    """The shape of what the catalogue does not explain: the empirical sigma multiplier along its covariate.
+    Hidden when everything is explained."""
+
+    title = ""
+
+    def on_mount(self) -> None:
+        self.show_shape(None)
+
+    def show_shape(self, shape: ShapeCurve | None) -> None:
+        self.display = shape is not None
+        self.title = shape.title if shape is not None else ""
+        plt = self.plt
+        plt.clear_data()
+        plt.clear_figure()
+        if shape is not None:
+            plt.title(shape.title)
+            plt.xlabel(f"{shape.covariate} [{shape.unit}]")
+            plt.ylabel("sigma x")
+            plt.plot(shape.x, shape.multiplier, marker="braille")
+        self.refresh()
 
 
 class FitTable(DataTable):
