@@ -31,6 +31,7 @@ from typing import Callable
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
+from scipy.special import expit
 
 from .composition import Component
 from .data import ModelData
@@ -51,7 +52,7 @@ SHAPES = (*COVARIATES, "position", "tails", "time", "fill")
 LOG_COVARIATES = ("range", "slant", "brightness")
 KNOTS = 7
 #: knots of the tails and fill shapes over ln Z
-RANGE_KNOTS = 7
+RANGE_KNOTS = 5
 
 
 def empirical(covariate: str) -> Effect:
@@ -252,22 +253,23 @@ class EmpiricalFrameMean(_MeasuredRangeGain):
 
 
 class EmpiricalFill(_RangeShape):
-    """Empirical sample loss: the fill rate times exp(f(ln Z)), fitted (the fill rate by stop is part of the
-    likelihood)."""
+    """Empirical sample loss: the fill rate times a kept share expit(g(ln Z)), fitted (the fill rate by stop
+    is part of the likelihood). The curve is over the logit of the kept share, so a loss that grows over
+    orders of magnitude with range (1e-7 at the near stops, 10 % at the far ones) is one smooth curve."""
 
     name = "empirical(fill)"
     covariate = "fill"
-    params = tuple(Param(f"f{i}", 0.0, -5.0, 0.5, "ln", f"ln of the fill multiplier at range knot {i}")
+    params = tuple(Param(f"g{i}", 10.0, -6.0, 16.0, "logit", f"logit of the share kept at range knot {i}")
                    for i in range(RANGE_KNOTS))
     signature = "the fill rate differs from the model's"
     explanation = "empirical sample loss: the camera drops samples for a reason the model does not know"
 
     def gain(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
-        return np.exp(self.curve(z_m, p))
+        return expit(self.curve(z_m, p))
 
     def apply(self, pred, p, d):
         fill = pred.fill if pred.fill is not None else np.ones(len(d))
-        pred.fill = np.clip(fill * self.gain(d.z0_m, p), 0.0, 1.0)
+        pred.fill = fill * self.gain(d.z0_m, p)
 
 
 def is_empirical(e: Component) -> bool:

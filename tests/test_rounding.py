@@ -1,0 +1,52 @@
+"""Exact rounding (rig.models.rounding) against simulated rounded normals, which share no formula with it:
+numpy draws normals, rounds them, and the per-pixel sample variance is compared with the prediction made
+from the same measured mean offset the model sees. Tolerances are the simulation's own standard error."""
+
+import numpy as np
+import pytest
+
+from rig.models.rounding import expected_sample_variance, grid_offset, rounded_moments
+
+PIXELS = 20_000
+
+
+def simulate(s: float, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(measured mean offset, sample variance) of PIXELS pixels with n rounded samples of N(mu, s^2) each,
+    mu uniform between two levels (units of q)."""
+    rng = np.random.default_rng(seed)
+    mu = rng.uniform(0.0, 1.0, PIXELS)[:, None]
+    r = np.round(mu + s * rng.standard_normal((PIXELS, n)))
+    return grid_offset(r.mean(axis=1)), r.var(axis=1, ddof=1)
+
+
+@pytest.mark.parametrize("s", [0.05, 0.12, 0.2, 0.3, 0.6, 1.5])
+@pytest.mark.parametrize("n", [30, 100, 300])
+def test_expected_sample_variance_matches_simulated_rounded_normals(s, n):
+    f, s2 = simulate(s, n, seed=int(1000 * s) + n)
+    predicted, _ = expected_sample_variance(np.full(PIXELS, s), f, np.full(PIXELS, n))
+    diff = s2 - predicted
+    # over pixels whose true means sit anywhere between two levels (what sigma by range compares):
+    # 4 standard errors of the simulation, plus 0.5 % of the variance for the table's interpolation
+    se = diff.std(ddof=1) / np.sqrt(PIXELS)
+    assert abs(diff.mean()) < 4 * se + 5e-3 * s2.mean(), (s, n, diff.mean(), se)
+    # pixel by pixel, in bands of the measured offset (0 on a level, q^2/4 half-way): the conditioning on
+    # the measured mean is approximate (the module docstring), off by at most 5 / (n - 1) of the variance
+    band = np.digitize(np.abs(f), [0.1, 0.2, 0.3, 0.4])
+    for b in range(5):
+        m = band == b
+        if m.sum() < 200:
+            continue
+        se = diff[m].std(ddof=1) / np.sqrt(m.sum())
+        assert abs(diff[m].mean()) < 4 * se + 5.0 / (n - 1) * predicted[m].mean(), (s, n, b, diff[m].mean(), se)
+
+
+def test_sheppards_correction_is_the_wide_limit():
+    s = np.array([2.0, 2.9])
+    var, mu4 = rounded_moments(s, np.array([0.1, 0.4]))
+    np.testing.assert_allclose(var, s**2 + 1 / 12, rtol=2e-3)
+    np.testing.assert_allclose(mu4, 3 * (s**2 + 1 / 12) ** 2 - 1 / 120, rtol=5e-3)
+
+
+def test_narrow_noise_depends_on_where_the_mean_sits():
+    var, _ = rounded_moments(np.array([0.05, 0.05]), np.array([0.0, 0.5]))
+    assert var[0] < 1e-6 and abs(var[1] - 0.25) < 1e-3  # one level: nothing; half-way: two levels equally often
