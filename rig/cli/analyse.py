@@ -82,6 +82,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     if args.model:
         return _fit_model(args)
+    if args.effects:
+        catalogue_of(args)  # a broken effects file is an error even when no model uses it yet
     r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
     if args.json:
         print(json.dumps(power_law_json(r.fit), indent=2))
