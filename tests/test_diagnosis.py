@@ -1,33 +1,40 @@
-"""rig diagnose, blind, on recordings with a hidden effect (rig.scenarios).
+"""rig diagnose, blind, on recordings with a hidden effect (rig.simulation.scenarios).
 
-The acceptance bar of the project: for every effect, named first in at least 9 of 10 seeds,
-the headline error at least halved and within noise once it is added; with nothing hidden,
-nothing significant reported in at least 9 of 10 seeds. `rig validate-diagnosis` runs the
-same trials and prints the table.
+The acceptance bar (issue 13): a catalogue effect is named first, the error beyond noise at least
+halved and every statistic within noise once it is added; a pair is found whole; for an effect
+the catalogue lacks, the diagnosis makes no false "within noise" claim with catalogue effects
+alone, names a covariate the effect explains, and the empirical terms bring every statistic
+within noise. The test suite runs one fixed seed of each scenario it can afford; the full table
+(10 seeds of every scenario, docs/models.md) is `rig validate-diagnosis --seeds 10`.
 """
 
 import json
 import re
-import subprocess
-import sys
 
 import h5py
 import pytest
 
 from rig.cli import main
-from rig.simulation.scenarios import CHOICES, HIDDEN
+from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN
 from rig.simulation.validation import run_trial
 
-SEEDS = range(1000, 1010)
+SEED = 1000
+#: the two slowest open scenarios (2-8 min each on a 2-core machine) are in the docs' table only
+SUITE = [s for s in ALL_SCENARIOS if s not in ("light_falloff", "noisy_confidence")]
 
 
-@pytest.mark.parametrize("effect", CHOICES)
-def test_hidden_effect_is_found_and_explains_the_error(tmp_path, effect):
-    trials = [run_trial(effect, seed, tmp_path) for seed in SEEDS]
-    named = [t.named for t in trials]
-    assert sum(t.correct for t in trials) >= 9, named
-    assert sum(t.halved for t in trials) >= 9
-    assert sum(t.within_noise for t in trials) >= 9, [(t.error_after_pct, t.noise_pct) for t in trials]
+@pytest.mark.parametrize("effect", SUITE)
+def test_the_diagnosis_finds_what_is_hidden(tmp_path, effect):
+    t = run_trial(effect, SEED, tmp_path)
+    where = (f"{effect}: path {t.path}, residual follows {t.covariate!r}, error {t.error_before_pct:.2f} % -> "
+             f"{t.error_catalogue_pct:.2f} % -> {t.error_after_pct:.2f} % (noise {t.noise_pct:.2f} %), "
+             f"worst {t.worst!r}")
+    assert t.correct, where
+    if t.kind == "open":
+        assert not t.claims_within_catalogue and t.covariate_right, where
+    else:
+        assert t.halved, where
+    assert t.within_noise, where
 
 
 def test_simulate_keeps_the_answer_out_of_the_recording(tmp_path, capsys):

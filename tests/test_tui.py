@@ -29,7 +29,7 @@ from rig.tui.app import RigApp  # noqa: E402
 from rig.tui.form import ExperimentSettings  # noqa: E402
 from rig.tui.live import RunState  # noqa: E402
 from rig.tui.results_service import BinRow, CandidateRow, FitRow, HistoryEntry, ResultsSession  # noqa: E402
-from rig.tui.widgets import EffectList, HeadlineChart, SigmaPlot  # noqa: E402
+from rig.tui.widgets import EffectList, HeadlineChart, ShapePlot, SigmaPlot  # noqa: E402
 
 try:
     import pytest_textual_snapshot  # noqa: F401  (provides the snap_compare fixture)
@@ -160,6 +160,43 @@ def test_adding_the_missing_effect_lowers_the_headline_error(slant_recording):
             # nothing checked anew: f says so instead of refitting
             await pilot.press("f")
             assert "nothing changed" in app.results.status.text
+
+    run(go())
+
+
+@pytest.fixture(scope="module")
+def beam_recording(tmp_path_factory) -> Path:
+    """A small simulated run hiding a cos^n beam fall-off, which the catalogue lacks."""
+    out = tmp_path_factory.mktemp("beam") / "beam.h5"
+    return record_scenario(hidden_scenario(3, "beam_falloff", width=60, frames=40), out)
+
+
+def test_not_explained_shows_its_shape_then_the_users_effect_explains_it(beam_recording):
+    root = Path(__file__).resolve().parents[1]
+
+    async def go():
+        app = RigApp(connect=False, recording=str(beam_recording))
+        async with app.run_test(size=(100, 40)) as pilot:
+            await until(pilot, lambda: app.results.session.diagnosis is not None and not app.results.busy,
+                        "the diagnosis", timeout_s=4 * TIMEOUT_S)
+            summary = str(app.query_one("#summary").render())
+            assert "Not explained by the catalogue" in summary and "radius" in summary, summary
+            plot = app.query_one(ShapePlot)
+            assert plot.display and "radius" in plot.title
+            # the operator types the effects file and opens the recording again
+            await type_into(pilot, "effects-path", str(root / "examples" / "beam_falloff.py"))
+            await pilot.press("enter")
+            await until(pilot, lambda: not app.results.busy and app.results.session.effects_file != "",
+                        "the diagnosis with the user's effect", timeout_s=4 * TIMEOUT_S)
+            rows = app.results.session.candidate_rows()
+            assert rows[0].effect == "beam_falloff" and rows[0].significant, rows[:3]
+            assert "beam_falloff" in str(app.query_one("#summary").render())
+            assert not plot.display  # nothing left unexplained, so no shape
+            # a broken effects file is one line in the status, and the app goes on
+            await type_into(pilot, "effects-path", str(root / "missing_effects.py"))
+            await pilot.press("enter")
+            await until(pilot, lambda: not app.results.busy, "the error")
+            assert "does not exist" in app.results.status.text
 
     run(go())
 
