@@ -156,7 +156,7 @@ class Diagnosis:
         first = u.steps[0]
         also = f" (equally well: {', '.join(first.equivalent)})" if first.equivalent else ""
         s = (f" Not explained by the catalogue: what remains ({first.family}) follows {first.covariate}{also}. "
-             f"An empirical shape over {first.covariate} (rig fit --model {u.steps[0].fit.model.name})")
+             f"An empirical shape over {first.covariate} (rig fit --model '{u.steps[0].fit.model.name}')")
         for st in u.steps[1:]:
             s += f", then over {st.covariate} (for {st.family})"
         h = u.final_headline
