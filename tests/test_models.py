@@ -45,15 +45,18 @@ def test_every_effect_documents_its_physics_and_parameters():
 
 def test_base_model_is_the_papers_fit(tmp_path):
     # up to 1.5 m the curvature of Z = f b / d (which the models include and the paper's fit
-    # does not) is below 0.02 % of the variance, so the two fits must agree
+    # does not) is below 0.02 % of the variance, so the two fits must agree; they differ by design
+    # in two small ways (docs/models.md, the likelihood): the models predict at the true range, not
+    # the samples' mean, and weigh each pixel's variance by the measured kurtosis, not 3. Together
+    # these move lambda by 0.2 standard errors here, so the bound is half a standard error.
     path, _, _ = record_perpendicular(tmp_path / "s.h5", width=106, frames=60, seed=12,
                                       stops_m=[0.5, 0.75, 1.0, 1.25, 1.5], effects="noise_floor(sigma_px=0.04)")
     d = ModelData.from_recording(path)
     with Recording(path) as rec:
         paper = fit_power_law(load_samples(rec))
     mine = Model(power_law).fit(d)
-    assert mine.values["lambda"] == pytest.approx(paper.lam, abs=0.1 * paper.se_lam)
-    assert mine.values["k"] == pytest.approx(paper.k, abs=0.1 * paper.se_k)
+    assert mine.values["lambda"] == pytest.approx(paper.lam, abs=0.5 * paper.se_lam)
+    assert mine.values["k"] == pytest.approx(paper.k, abs=0.5 * paper.se_k)
     assert mine.errors["lambda"] == pytest.approx(paper.se_lam, rel=0.01)
     assert mine.errors["k"] == pytest.approx(paper.se_k, rel=0.01)
 
