@@ -112,7 +112,10 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
         cons = current_head.consistency
         failing = cons.failing(extra=1) if cons is not None else []
         if not current_head.sigma_within_noise and not any(c.quantity == "sigma" for c in failing):
-            failing = [None, *failing]  # the headline bins (sigma by range and radius)
+            # the headline bins (sigma by range and radius), in their place by how far beyond noise they are
+            z = (current_head.chi2 - current_head.dof) / max(2 * current_head.dof, 2) ** 0.5
+            at = next((i for i, c in enumerate(failing) if c.excess_z < z), len(failing))
+            failing = [*failing[:at], None, *failing[at:]]
         family, shapes = "", []
         for check in failing:  # the worst family that still has a shape to try
             family, shapes = _shapes_for(check, current_head)
