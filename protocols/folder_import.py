@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ from drivers.folder import FolderCamera, ImportSettings, StopSource, check_stops
 from drivers.stage import NoStage
 
 from .plan import Capture, Configure, Move, Plan
+from .stop_journal import journal_dir
 from .runner import ProgressCallback, ProgressEvent, Runner, RunError
 
 PROTOCOL = "import"
@@ -76,6 +78,7 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
         tmp.rename(out)
     except BaseException:
         tmp.unlink(missing_ok=True)
+        shutil.rmtree(journal_dir(tmp), ignore_errors=True)
         raise
     return out
 
