@@ -96,7 +96,10 @@ def _record(stops: list[StopSource], settings: ImportSettings, shape: tuple[int,
     try:
         Runner(camera, NoStage(), progress=progress, sleep=lambda s: None).run(import_plan(stops, settings, src.resolve()), path)
     except RunError as e:
-        raise FolderImportError(f"import of {src} stopped ({str(e).split('; ')[0]}); nothing was written") from None
+        parts = str(e).split("; ")
+        free = next((p.split(" and ")[0] for p in parts if p.startswith("free about")), "")
+        fix = f"; {free} and import again" if free else ""
+        raise FolderImportError(f"import of {src} stopped ({parts[0]}); nothing was written{fix}") from None
 
 
 def write_provenance(path: Path, src: Path, manifest: dict[str, Any], overrides: dict[str, Any] | None,

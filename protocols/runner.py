@@ -334,7 +334,7 @@ class _Aborted(Exception):
 
 
 #: free space kept on top of a stop's size (the assembly at the end needs its own check)
-_RESERVE_BYTES = 8 * 1024 * 1024
+_RESERVE_BYTES = 1024 * 1024
 
 
 class _DiskFull(Exception):
