@@ -111,6 +111,10 @@ def check_format(f: h5py.File, path: Path, *, strict: bool = False) -> None:
         raise RecordingError(f"{path} has format version {ver}, newer than this rig reads ({FORMAT_VERSION}); upgrade rig")
 
 
+#: what h5py raises on a damaged file (HDF5's own errors arrive as any of these)
+H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError)
+
+
 class Recording:
     """A recording opened for reading, with the stop files of a run under way or interrupted. Stops are
     read one at a time, on demand, and checked (`check_stop`): a value that cannot be right is a one-line
@@ -129,6 +133,13 @@ class Recording:
         self._stop_files: dict[str, h5py.File] = {}
         try:
             self._read_header()
+        except RecordingError:
+            self.close()
+            raise
+        except H5_ERRORS as e:
+            self.close()
+            raise RecordingError(f"{self.path}: its header cannot be read ({type(e).__name__}: {e}); the file is damaged: "
+                                 "copy it aside and record again (docs/reliability.md)") from None
         except BaseException:
             self.close()
             raise
@@ -150,7 +161,7 @@ class Recording:
         for label in list(stops):
             try:
                 complete = bool(stops[label].attrs.get("complete", True))
-            except (OSError, KeyError, ValueError, TypeError) as e:
+            except H5_ERRORS as e:
                 self.skipped.append(f"stop {label!r}: unreadable ({type(e).__name__}: {e})")
                 continue
             if complete:
@@ -185,7 +196,7 @@ class Recording:
                 g = self._group(label)
                 if "mean_m" in g and len(g["mean_m"].shape) == 2:
                     return tuple(g["mean_m"].shape)  # type: ignore[return-value]
-            except (OSError, KeyError, ValueError, RecordingError):
+            except H5_ERRORS + (RecordingError,):
                 continue
         return (0, 0)
 
@@ -223,13 +234,37 @@ class Recording:
         """All stops are in the file itself (no stop files beside it)."""
         return all(kind == "main" for kind, _ in self._where.values())
 
+    def notes(self) -> list[str]:
+        """What a reader of a fit must know about the recording itself: still being written, interrupted
+        (which planned stops are missing), entries skipped as unreadable, a single stop."""
+        labels = self.stop_labels()
+        out = []
+        if self.writer is not None:
+            out.append(f"still being written by PID {self.writer.get('pid')} ({len(labels)} stops complete so far)")
+        planned = self.protocol_params.get("stops_m")
+        if isinstance(planned, list) and planned and self.writer is None:
+            try:
+                want = [f"{float(z):.3f}m" for z in planned]
+            except (TypeError, ValueError):
+                want = []
+            missing = [w for w in want if w not in labels]
+            if missing:
+                out.append(f"{len(want) - len(missing)} of {len(want)} planned stops (missing {', '.join(missing[:5])}"
+                           f"{', ...' if len(missing) > 5 else ''}); rig run ... --resume records the rest")
+        elif "ended_utc" not in self.attrs and self.writer is None and labels:
+            out.append("the run did not finish (no ended_utc); rig run ... --resume records the rest")
+        out += [f"skipped {s}" for s in self.skipped]
+        if len(labels) == 1 and self.protocol != "tilted":
+            out.append("one stop only: the range dependence rests on that stop's spread of ranges")
+        return out
+
     def stop_labels(self) -> list[str]:
         """Complete, readable stops in capture order (the unreadable ones are named in `skipped`)."""
         keyed = []
         for label in list(self._where):
             try:
                 index = int(self._group(label).attrs.get("index", 0))
-            except (OSError, KeyError, ValueError, TypeError, RecordingError) as e:
+            except H5_ERRORS + (RecordingError,) as e:
                 self.skipped.append(f"stop {label!r}: unreadable ({type(e).__name__}: {e})")
                 del self._where[label]
                 continue
@@ -245,7 +280,7 @@ class Recording:
             return self._read_stop(label)
         except RecordingError:
             raise
-        except (OSError, KeyError, ValueError, TypeError) as e:
+        except H5_ERRORS as e:
             raise RecordingError(f"{self.path}: stop {label!r} cannot be read ({type(e).__name__}: {e}); "
                                  "the file is damaged: copy it aside and re-record that stop with --resume") from None
 

@@ -200,7 +200,7 @@ class RecordingWriter:
         if self._open_stop is None:
             raise RecordingError("end_stop without begin_stop")
         f, label, partial = self._open_stop
-        comp = dict(compression="gzip", compression_opts=1, shuffle=True)
+        comp = dict(compression="gzip", compression_opts=1, shuffle=True, fletcher32=True)  # a flipped byte is an error, not a value
         g.create_dataset("count", data=stats.count, **comp)
         g.create_dataset("mean_m", data=stats.mean_m, **comp)
         g.create_dataset("m2_m2", data=stats.m2_m2, **comp)
