@@ -8,6 +8,7 @@ docs/stages.md lists them all with causes and fixes.
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -223,6 +224,8 @@ class GrblStage(Stage):
             x_mm = float(fields["MPos"].split(",")[0])
         except ValueError:
             raise self.link.garbled(text, "'?'") from None
+        if not math.isfinite(x_mm) or abs(x_mm) > 1e6:
+            raise self.link.garbled(text, "'?'")  # no rail is a kilometre long
         self._last_x_mm = x_mm
         return GrblStatus(match.group(1), x_mm)
 

@@ -166,8 +166,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose, render_text
-    from ..reports.diagnosis_html import write_html
-    from ..reports.diagnosis_plots import write_plots
 
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
@@ -183,10 +181,35 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for note in recording_notes(args.recording):
         print(f"note: {note}")
     print(render_text(diag))
-    plots = write_plots(diag, out)
-    page = write_html(diag, plots, out)
+    plots, page = _write_report(diag, out)
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return 0
+
+
+def _write_report(diag, out: Path) -> tuple[list[Path], Path]:
+    """Plots and page are made in a folder beside `out`, then moved in file by file (each move atomic), and
+    the previous run's diagnosis files that this one did not make are removed: a diagnosis killed while it
+    works leaves the previous report whole, never a mix of old and new plots."""
+    import os
+    import shutil
+
+    from ..reports.diagnosis_html import write_html
+    from ..reports.diagnosis_plots import write_plots
+
+    out.mkdir(parents=True, exist_ok=True)
+    work = out.parent / f".{out.name}.{os.getpid()}.writing"
+    try:
+        plots = write_plots(diag, work)
+        page = write_html(diag, plots, work)
+        made = [*plots, page]
+        for old in out.glob("diagnosis*"):
+            if old.is_file() and old.name not in {p.name for p in made}:
+                old.unlink()
+        for p in made:
+            os.replace(p, out / p.name)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return [out / p.name for p in plots], out / page.name
 
 
 def _check_writable(folder: Path) -> None:
