@@ -55,16 +55,24 @@ def _differences(what: str, old: dict[str, Any], new: dict[str, Any]) -> list[st
     return out
 
 
-def has_complete_stop(path: Path) -> bool:
-    """Whether `path` (with its stop files) holds any complete stop; unreadable files count as holding one."""
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_empty_leftover(path: Path) -> bool:
+    """A file a run left before its first stop: a rig header with no complete stop and no stop files, or a
+    torn HDF5 file of a few kilobytes (a kill inside the first write). Anything else is somebody's data."""
     if journal.completed_stop_files(path):
-        return True
+        return False
     try:
         with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != FORMAT:
+                return False
             stops = f.get("stops")
-            return stops is not None and any(bool(stops[k].attrs.get("complete", True)) for k in stops)
-    except (OSError, KeyError, ValueError):
-        return path.stat().st_size > 4096  # a torn header (a kill before the first stop) is small; keep anything else
+            return stops is None or not any(bool(stops[k].attrs.get("complete", True)) for k in stops)
+    except (OSError, KeyError, ValueError, RuntimeError):
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+        return head == HDF5_SIGNATURE and path.stat().st_size <= 4096
 
 
 class RecordingWriter:
@@ -95,9 +103,9 @@ class RecordingWriter:
             journal.remove_partials(p)
             return
         if p.exists():
-            if has_complete_stop(p):
+            if not is_empty_leftover(p):
                 raise RecordingError(f"{p} already exists; choose another output file or pass --resume to continue it")
-            p.unlink()  # a file with no complete stop (a run killed before its first stop) is not worth keeping
+            p.unlink()  # a run killed before its first stop left it: not worth keeping, and not a trap
         d = journal.journal_dir(p)
         if d.is_dir():
             shutil.rmtree(d)

@@ -107,6 +107,11 @@ def test_a_leftover_with_no_complete_stop_is_replaced(tmp_path):
         assert len(rec.stop_labels()) == 3
     with pytest.raises(RecordingError, match="already exists"):
         RecordingWriter(path)  # one with stops is never replaced
+    notes = tmp_path / "notes.h5"
+    notes.write_text("somebody's notes, not a recording")
+    with pytest.raises(RecordingError, match="already exists"):
+        RecordingWriter(notes)  # nor is anything that is not a torn rig file
+    assert notes.read_text() == "somebody's notes, not a recording"
 
 
 @pytest.mark.parametrize("text,message", [
