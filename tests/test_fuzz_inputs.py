@@ -109,3 +109,36 @@ def test_a_status_with_an_impossible_position_is_garbled(text):
     stage = GrblStage("/dev/null", timeout_s=0.05)
     with pytest.raises(StageError, match="garbled"):
         stage._parse_status(text)
+
+
+MANIFEST_KEYS = ["fx", "fy", "cx", "cy", "baseline_m", "depth_unit_m", "projector_on", "exposure_us", "gain",
+                 "stop_distance_from_name", "camera_model", "camera_serial", "typo"]
+GOOD_MANIFEST = dict(fx=400.0, fy=400.0, cx=50.0, cy=30.0, baseline_m=0.05, depth_unit_m=0.001, projector_on=True)
+
+
+@FUZZ
+@given(changes=st.dictionaries(st.sampled_from(MANIFEST_KEYS), values, max_size=4),
+       table=st.one_of(st.none(), st.dictionaries(st.text(max_size=6), values, max_size=3)))
+def test_import_manifests(tmp_path, changes, table):
+    from drivers.errors import FolderImportError
+    from drivers.folder import MANIFEST_NAME, load_settings
+
+    manifest = {**GOOD_MANIFEST, **changes}
+    lines = [f"{k} = {toml_value(v)}" for k, v in manifest.items()]
+    if table is not None:
+        lines += ["[stop_distance_m]"] + [f"{toml_value(k)} = {toml_value(v)}" for k, v in table.items()]
+    folder = tmp_path / "src"
+    folder.mkdir(exist_ok=True)
+    (folder / MANIFEST_NAME).write_text("\n".join(lines) + "\n")
+    try:
+        settings_, _ = load_settings(folder)
+    except FolderImportError as e:
+        assert "\n" not in str(e) and str(e)
+        return
+    import math
+
+    for key in ("fx", "fy", "baseline_m", "depth_unit_m"):
+        v = getattr(settings_, key, None)
+        assert v is None or (math.isfinite(v) and v > 0), (key, v)
+    assert math.isfinite(settings_.cx) and math.isfinite(settings_.cy)
+    assert all(math.isfinite(z) and z > 0 for z in settings_.stop_distance_m.values()), settings_.stop_distance_m

@@ -143,3 +143,24 @@ def test_bad_values_on_the_command_line_are_one_line(tmp_path, capsys, args, mes
     assert main(["run", *args, "-o", str(tmp_path / "o.h5")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_sigterm_ends_a_run_like_ctrl_c(tmp_path):
+    out = tmp_path / "r.h5"
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from rig.cli import main; sys.exit(main(sys.argv[1:]))",
+                             "run", "--protocol", "perpendicular", "--camera", "fake:width=106",
+                             "--stage", "fake:", "--frames", "60", "-o", str(out)],
+                            stderr=subprocess.PIPE, text=True, cwd=os.getcwd())
+    seen = []
+    for line in proc.stderr:  # progress goes to stderr; stop after the second stop is done
+        seen.append(line)
+        if "done:" in line and len([s for s in seen if "done:" in s]) == 2:
+            proc.send_signal(15)
+            break
+    rest = proc.stderr.read()
+    assert proc.wait(timeout=60) == 2, rest
+    last = rest.strip().splitlines()[-1]
+    assert "run interrupted;" in last and "of 11 stops are saved" in last and "--resume" in last, rest
+    assert "Traceback" not in rest
+    with Recording(out) as rec:
+        assert len(rec.stop_labels()) >= 2
