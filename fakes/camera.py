@@ -103,6 +103,12 @@ class FakeCamera(DepthCamera):
         try:
             width = int(options.get("width", NATIVE_WIDTH))
             height = int(options.get("height", round(width * 480 / NATIVE_WIDTH)))
+            if not (4 <= width <= 4096 and 2 <= height <= 4096):
+                raise CameraError(f"fake camera: {width}x{height} px is outside 4x2 to 4096x4096 (a D455 is 1280x720 at most); "
+                                  "e.g. fake:width=424")
+            for key in ("depth_unit_mm", "baseline_mm", "fps"):
+                if key in options and not 0 < float(options[key]) < 1e4:
+                    raise CameraError(f"fake camera: {key}={options[key]} must be a positive number; e.g. fake:{key}=1")
             return cls(
                 world,
                 width=width,
@@ -155,7 +161,7 @@ class FakeCamera(DepthCamera):
         self._require_open()
         lo, hi = EXPOSURE_RANGE_US
         if not lo <= settings.exposure_us <= hi:
-            raise CameraError(f"{self.name}: exposure {settings.exposure_us} us is outside {lo:.0f}-{hi:.0f} us; choose one inside")
+            raise CameraError(f"{self.name}: exposure {settings.exposure_us:g} us is outside {lo:.0f}-{hi:.0f} us; choose one inside")
         lo, hi = GAIN_RANGE
         if not lo <= settings.gain <= hi:
             raise CameraError(f"{self.name}: gain {settings.gain} is outside {lo:.0f}-{hi:.0f}; choose one inside")

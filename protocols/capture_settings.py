@@ -13,6 +13,12 @@ from typing import Any
 from drivers.camera import CameraSettings
 
 from .plan import Capture
+from .plan_values import flag, number, whole
+
+#: the widest ranges any supported camera takes (RealSense D4xx: exposure 1-165000 us, gain 16-248;
+#: OAK-D: exposure up to 33000 us, ISO 100-1600); a device refuses what it cannot do when configured
+EXPOSURE_US = (1.0, 200_000.0)
+GAIN = (0.0, 10_000.0)
 
 
 @dataclass(frozen=True)
@@ -33,6 +39,18 @@ class CaptureSettings:
     ir: bool = True
     ambient_frames: int = 0
     keep_raw: bool = False
+
+    def __post_init__(self) -> None:
+        w = "capture settings"
+        checked = dict(projector_on=flag(w, "projector_on", self.projector_on),
+                       exposure_us=number(w, "exposure_us", self.exposure_us, *EXPOSURE_US, "us (auto exposure is "
+                                          "always off: rig fixes the exposure so that sigma depends on range only)"),
+                       gain=number(w, "gain", self.gain, *GAIN),
+                       settle_s=number(w, "settle_s", self.settle_s, 0.0, 3600.0, "s"),
+                       ir=flag(w, "ir", self.ir), ambient_frames=whole(w, "ambient_frames", self.ambient_frames, 0, 10_000),
+                       keep_raw=flag(w, "keep_raw", self.keep_raw))
+        for k, v in checked.items():
+            object.__setattr__(self, k, v)
 
     @classmethod
     def names(cls) -> list[str]:

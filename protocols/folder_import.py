@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ from drivers.folder import FolderCamera, ImportSettings, StopSource, check_stops
 from drivers.stage import NoStage
 
 from .plan import Capture, Configure, Move, Plan
+from .stop_journal import journal_dir
 from .runner import ProgressCallback, ProgressEvent, Runner, RunError
 
 PROTOCOL = "import"
@@ -76,6 +78,7 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
         tmp.rename(out)
     except BaseException:
         tmp.unlink(missing_ok=True)
+        shutil.rmtree(journal_dir(tmp), ignore_errors=True)
         raise
     return out
 
@@ -93,7 +96,10 @@ def _record(stops: list[StopSource], settings: ImportSettings, shape: tuple[int,
     try:
         Runner(camera, NoStage(), progress=progress, sleep=lambda s: None).run(import_plan(stops, settings, src.resolve()), path)
     except RunError as e:
-        raise FolderImportError(f"import of {src} stopped ({str(e).split('; ')[0]}); nothing was written") from None
+        parts = str(e).split("; ")
+        free = next((p.split(" and ")[0] for p in parts if p.startswith("free about")), "")
+        fix = f"; {free} and import again" if free else ""
+        raise FolderImportError(f"import of {src} stopped ({parts[0]}); nothing was written{fix}") from None
 
 
 def write_provenance(path: Path, src: Path, manifest: dict[str, Any], overrides: dict[str, Any] | None,

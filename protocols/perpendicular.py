@@ -11,6 +11,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from .capture_settings import CaptureSettings
+from .plan_values import number, whole
 from .plan import Configure, Home, Move, Plan, Settle, Step
 
 DEFAULT_STOPS_M = tuple(float(z) for z in np.round(np.arange(0.5, 3.0001, 0.25), 3))
@@ -27,11 +28,15 @@ def perpendicular(stops_m: Sequence[float] = DEFAULT_STOPS_M, frames_per_stop: i
     projector_on, exposure_us, gain, settle_s, ir, ambient_frames, keep_raw).
     """
     settings = CaptureSettings.from_options("perpendicular", capture)
-    stops = [float(z) for z in stops_m]
+    if isinstance(stops_m, (str, bytes)) or not hasattr(stops_m, "__iter__"):
+        raise ValueError(f"perpendicular: stops_m = {stops_m!r} must be a list of distances in m, e.g. [0.5, 0.75, 1.0]")
+    stops = [number("perpendicular", "stops_m", z, 0.05, 100.0, "m") for z in stops_m]
     if not stops:
         raise ValueError("perpendicular: no stops given; pass stops_m, e.g. [0.5, 0.75, 1.0]")
-    if frames_per_stop < 2:
-        raise ValueError(f"perpendicular: frames_per_stop={frames_per_stop}; at least 2 frames are needed for a variance")
+    if len(set(stop_label(z) for z in stops)) != len(stops):
+        raise ValueError("perpendicular: stops_m repeats a distance (to the mm); give each stop once")
+    frames_per_stop = whole("perpendicular", "frames_per_stop", frames_per_stop, 2, 1_000_000,
+                            "at least 2 frames are needed for a variance")
     params = dict(stops_m=stops, frames_per_stop=frames_per_stop, **settings.to_params())
 
     def steps() -> Iterator[Step]:

@@ -1,9 +1,9 @@
-"""The recording: one HDF5 file per experiment (schema in docs/data-format.md).
+"""The recording: one HDF5 file per experiment (schema in docs/data-format.md), read stop by stop.
 
-Writing is stop by stop: a stop's group is created when its capture starts (marked
-incomplete), filled when it ends, marked complete and flushed. An interrupted run therefore
-keeps every completed stop, and `RecordingWriter(path, resume=True)` drops the incomplete one
-and carries on.
+While a run is under way, or after it was interrupted, its completed stops are also in one file
+each beside it (`stop_journal`); `Recording` reads both, so an interrupted run is readable as it
+stands. A stop that cannot be read (a damaged file written by an older rig) is skipped and named
+in `skipped`, never a traceback. Writing: `recording_writer.RecordingWriter`.
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ FORMAT = "rig.recording"
 FORMAT_VERSION = 1
 
 
-class RecordingError(ValueError):
-    """A file is not a valid recording; the message names the file and what is wrong."""
+from . import stop_journal as journal  # noqa: E402
+from .recording_errors import RecordingError  # noqa: E402,F401  (re-exported: the readers' error)
+from .run_lock import holder  # noqa: E402
 
 
 def utc_now() -> str:
@@ -91,134 +92,33 @@ class CameraCalibration:
     depth_scale_m: float
 
 
-class _OpenRecording:
-    """An open HDF5 recording (`self.file`), closed by `close()` or at the end of a `with` block."""
-
-    file: h5py.File
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        if self.file.id.valid:
-            self.file.close()
-
-
-class RecordingWriter(_OpenRecording):
-    """Write a recording stop by stop. Use as a context manager."""
-
-    def __init__(self, path: str | Path, *, resume: bool = False):
-        self.path = Path(path)
-        if self.path.exists() and not resume:
-            raise RecordingError(f"{self.path} already exists; choose another output file or pass --resume to continue it")
-        if resume and not self.path.exists():
-            raise RecordingError(f"{self.path} does not exist, so there is nothing to resume; run without --resume")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.file = h5py.File(self.path, "a" if resume else "w-")
-        if resume:
-            _check_format(self.file, self.path)
-            for label in self.incomplete_stops():
-                del self.file["stops"][label]
-            self.file.flush()
-
-    # -- experiment --------------------------------------------------------------------------
-    def start_experiment(self, *, protocol: str, params: dict[str, Any], camera: dict[str, Any],
-                         stage: dict[str, Any], calibration: CameraCalibration) -> None:
-        """Write the experiment's header (on resume, check that it is the same experiment)."""
-        f = self.file
-        if "format" in f.attrs:
-            if f.attrs["protocol"] != protocol or json.loads(f.attrs["protocol_params"]) != _jsonable(params):
-                raise RecordingError(
-                    f"{self.path} holds a different experiment ({f.attrs['protocol']}); resume it with the plan that made it, or write a new file"
-                )
-            return
-        f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
-        f.attrs["software_version"] = software_version()
-        f.attrs["protocol"] = protocol
-        f.attrs["protocol_params"] = json.dumps(_jsonable(params))
-        f.attrs["started_utc"] = utc_now()
-        f.attrs["camera_model"] = str(camera.get("model", ""))
-        f.attrs["camera_serial"] = str(camera.get("serial", ""))
-        f.attrs["camera"] = json.dumps(_jsonable(camera))
-        f.attrs["stage"] = json.dumps(_jsonable(stage))
-        cam = f.require_group("camera")
-        for k, v in vars(calibration).items():
-            cam.attrs[k] = v
-        f.require_group("stops")
-        f.flush()
-
-    def finish(self) -> None:
-        self.file.attrs["ended_utc"] = utc_now()
-        self.file.flush()
-
-    # -- stops -----------------------------------------------------------------------------
-    def completed_stops(self) -> set[str]:
-        stops = self.file.get("stops", {})
-        return {k for k in stops if bool(stops[k].attrs.get("complete", False))}
-
-    def incomplete_stops(self) -> list[str]:
-        stops = self.file.get("stops", {})
-        return [k for k in stops if not bool(stops[k].attrs.get("complete", False))]
-
-    def begin_stop(self, label: str, *, index: int, commanded_position_m: float, measured_position_m: float,
-                   settings_requested: dict[str, Any], settings_read_back: dict[str, Any]) -> h5py.Group:
-        g = self.file["stops"].create_group(label)
-        g.attrs["complete"] = False
-        g.attrs["index"] = index
-        g.attrs["commanded_position_m"] = commanded_position_m
-        g.attrs["measured_position_m"] = measured_position_m
-        g.attrs["settings_requested"] = json.dumps(settings_requested)
-        g.attrs["settings_read_back"] = json.dumps(settings_read_back)
-        g.attrs["started_utc"] = utc_now()
-        return g
-
-    def raw_frames(self, g: h5py.Group, n_frames: int, shape: tuple[int, int]) -> h5py.Dataset:
-        """A dataset to stream a stop's raw depth frames into, one frame per row."""
-        return g.create_dataset("raw_depth", shape=(n_frames, *shape), dtype=np.uint16,
-                                chunks=(1, *shape), compression="gzip", compression_opts=1)
-
-    def end_stop(self, g: h5py.Group, *, stats: PixelStats, series: FrameSeries, ir_mean: np.ndarray | None,
-                 ambient_ir_mean: np.ndarray | None, extra_attrs: dict[str, Any] | None = None) -> None:
-        comp = dict(compression="gzip", compression_opts=1, shuffle=True)
-        g.create_dataset("count", data=stats.count, **comp)
-        g.create_dataset("mean_m", data=stats.mean_m, **comp)
-        g.create_dataset("m2_m2", data=stats.m2_m2, **comp)
-        g.create_dataset("m3_m3", data=stats.m3_m3, **comp)
-        g.create_dataset("m4_m4", data=stats.m4_m4, **comp)
-        if ir_mean is not None:
-            g.create_dataset("ir_mean", data=ir_mean, **comp)
-        if ambient_ir_mean is not None:
-            g.create_dataset("ambient_ir_mean", data=ambient_ir_mean, **comp)
-        fr = g.create_group("frames")
-        for name in FrameSeries.FIELDS:
-            fr.create_dataset(name, data=getattr(series, name))
-        g.attrs["n_frames"] = len(series.frame_number)
-        g.attrs["ended_utc"] = utc_now()
-        for k, v in (extra_attrs or {}).items():
-            g.attrs[k] = v
-        g.attrs["complete"] = True
-        self.file.flush()
-
-
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
+    """`x` as plain JSON data (arrays as lists, anything else unknown as its str)."""
     return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
-def _check_format(f: h5py.File, path: Path) -> None:
+def check_format(f: h5py.File, path: Path, *, strict: bool = False) -> None:
+    """Refuse files of another format or a newer version; with `strict` (resume), a missing `format` too."""
     fmt = f.attrs.get("format")
-    if fmt is not None and fmt != FORMAT:
+    if (fmt is None and strict) or (fmt is not None and fmt != FORMAT):
         raise RecordingError(f"{path} is not a rig recording (format={fmt!r}); check the file name")
-    ver = int(f.attrs.get("format_version", FORMAT_VERSION))
+    try:
+        ver = int(f.attrs.get("format_version", FORMAT_VERSION))
+    except (TypeError, ValueError):
+        raise RecordingError(f"{path}: its format_version {f.attrs.get('format_version')!r} is not a number; "
+                             "see docs/data-format.md") from None
     if ver > FORMAT_VERSION:
         raise RecordingError(f"{path} has format version {ver}, newer than this rig reads ({FORMAT_VERSION}); upgrade rig")
 
 
-class Recording(_OpenRecording):
-    """A recording opened for reading. Stops are read one at a time, on demand."""
+#: what h5py raises on a damaged file (HDF5's own errors arrive as any of these)
+H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError)
+
+
+class Recording:
+    """A recording opened for reading, with the stop files of a run under way or interrupted. Stops are
+    read one at a time, on demand, and checked (`check_stop`): a value that cannot be right is a one-line
+    error naming the stop and the field; a stop that cannot be read at all is skipped and named in `skipped`."""
 
     REQUIRED_STOP = ("count", "mean_m", "m2_m2")
 
@@ -230,8 +130,23 @@ class Recording(_OpenRecording):
             self.file = h5py.File(self.path, "r")
         except OSError as e:
             raise RecordingError(f"{self.path} is not an HDF5 file ({e}); pass a recording written by rig run or rig import") from None
+        self._stop_files: dict[str, h5py.File] = {}
+        try:
+            self._read_header()
+        except RecordingError:
+            self.close()
+            raise
+        except H5_ERRORS as e:
+            self.close()
+            raise RecordingError(f"{self.path}: its header cannot be read ({type(e).__name__}: {e}); the file is damaged: "
+                                 "copy it aside and record again (docs/reliability.md)") from None
+        except BaseException:
+            self.close()
+            raise
+
+    def _read_header(self) -> None:
         f = self.file
-        _check_format(f, self.path)
+        check_format(f, self.path)
         if "camera" not in f or "stops" not in f:
             raise RecordingError(f"{self.path} lacks the 'camera' group or the 'stops' group; see docs/data-format.md")
         cam = f["camera"].attrs
@@ -239,18 +154,63 @@ class Recording(_OpenRecording):
         if missing:
             raise RecordingError(f"{self.path}: /camera lacks attribute(s) {missing}; see docs/data-format.md")
         self.attrs = dict(f.attrs)
-        first = next(iter(f["stops"].values()), None)
-        shape = first["mean_m"].shape if first is not None and "mean_m" in first else (0, 0)
+        self.writer = holder(self.path)  # a live run still writing it, if any
+        self.skipped: list[str] = []
+        self._where: dict[str, tuple[str, str | Path]] = {}
+        stops = f["stops"]
+        for label in list(stops):
+            try:
+                complete = bool(stops[label].attrs.get("complete", True))
+            except H5_ERRORS as e:
+                self.skipped.append(f"stop {label!r}: unreadable ({type(e).__name__}: {e})")
+                continue
+            if complete:
+                self._where[label] = ("main", label)
+        for label, p in journal.completed_stop_files(self.path).items():
+            self._where.setdefault(label, ("file", p))
+        shape = self._first_shape()
+
+        def number(key: str, default: float | None = None, *, positive: bool = False) -> float:
+            raw = cam.get(key, default)
+            try:
+                v = float(raw)
+            except (TypeError, ValueError):
+                raise RecordingError(f"{self.path}: /camera attribute {key} is {raw!r}, not a number; see docs/data-format.md") from None
+            if not np.isfinite(v) or (positive and v <= 0):
+                raise RecordingError(f"{self.path}: /camera attribute {key} is {v!r}; it must be a finite"
+                                     f"{' positive' if positive else ''} number (see docs/data-format.md)")
+            return v
+
         self.calibration = CameraCalibration(
-            width=int(cam.get("width", shape[1])),
-            height=int(cam.get("height", shape[0])),
-            fx=float(cam["fx"]),
-            fy=float(cam["fy"]),
-            cx=float(cam["cx"]),
-            cy=float(cam["cy"]),
-            baseline_m=float(cam["baseline_m"]),
-            depth_scale_m=float(cam["depth_scale_m"]),
+            width=int(number("width", shape[1])), height=int(number("height", shape[0])),
+            fx=number("fx", positive=True), fy=number("fy", positive=True), cx=number("cx"), cy=number("cy"),
+            baseline_m=number("baseline_m", positive=True), depth_scale_m=number("depth_scale_m", positive=True),
         )
+        if not 1e-7 <= self.calibration.depth_scale_m <= 0.1:
+            raise RecordingError(f"{self.path}: /camera depth_scale_m = {self.calibration.depth_scale_m:g} m per unit is "
+                                 "implausible (a RealSense uses 0.001 or 0.0001); set it in metres per depth unit")
+
+    def _first_shape(self) -> tuple[int, int]:
+        for label in self._where:
+            try:
+                g = self._group(label)
+                if "mean_m" in g and len(g["mean_m"].shape) == 2:
+                    return tuple(g["mean_m"].shape)  # type: ignore[return-value]
+            except H5_ERRORS + (RecordingError,):
+                continue
+        return (0, 0)
+
+    def _group(self, label: str) -> h5py.Group:
+        kind, where = self._where[label]
+        if kind == "main":
+            return self.file["stops"][where]
+        f = self._stop_files.get(label)
+        if f is None:
+            try:
+                f = self._stop_files[label] = h5py.File(where, "r")
+            except OSError as e:
+                raise RecordingError(f"{where}: unreadable ({e})") from None
+        return f[journal.STOP_GROUP]
 
     @property
     def protocol(self) -> str:
@@ -258,20 +218,74 @@ class Recording(_OpenRecording):
 
     @property
     def protocol_params(self) -> dict[str, Any]:
-        return json.loads(self.attrs.get("protocol_params", "{}"))
+        try:
+            params = json.loads(self.attrs.get("protocol_params", "{}"))
+        except (TypeError, ValueError):
+            raise RecordingError(f"{self.path}: protocol_params is not valid JSON; see docs/data-format.md") from None
+        return params if isinstance(params, dict) else {}
+
+    @property
+    def in_progress(self) -> bool:
+        """A live run is still writing this recording."""
+        return self.writer is not None
+
+    @property
+    def assembled(self) -> bool:
+        """All stops are in the file itself (no stop files beside it)."""
+        return all(kind == "main" for kind, _ in self._where.values())
+
+    def notes(self) -> list[str]:
+        """What a reader of a fit must know about the recording itself: still being written, interrupted
+        (which planned stops are missing), entries skipped as unreadable, a single stop."""
+        labels = self.stop_labels()
+        out = []
+        if self.writer is not None:
+            out.append(f"still being written by PID {self.writer.get('pid')} ({len(labels)} stops complete so far)")
+        planned = self.protocol_params.get("stops_m")
+        if isinstance(planned, list) and planned and self.writer is None:
+            try:
+                want = [f"{float(z):.3f}m" for z in planned]
+            except (TypeError, ValueError):
+                want = []
+            missing = [w for w in want if w not in labels]
+            if missing:
+                out.append(f"{len(want) - len(missing)} of {len(want)} planned stops (missing {', '.join(missing[:5])}"
+                           f"{', ...' if len(missing) > 5 else ''}); rig run ... --resume records the rest")
+        elif "ended_utc" not in self.attrs and self.writer is None and labels:
+            out.append("the run did not finish (no ended_utc); rig run ... --resume records the rest")
+        out += [f"skipped {s}" for s in self.skipped]
+        if len(labels) == 1 and self.protocol != "tilted":
+            out.append("one stop only: the range dependence rests on that stop's spread of ranges")
+        return out
 
     def stop_labels(self) -> list[str]:
-        """Complete stops in capture order."""
-        stops = self.file["stops"]
-        labels = [k for k in stops if bool(stops[k].attrs.get("complete", True))]
-        return sorted(labels, key=lambda k: (int(stops[k].attrs.get("index", 0)), k))
+        """Complete, readable stops in capture order (the unreadable ones are named in `skipped`)."""
+        keyed = []
+        for label in list(self._where):
+            try:
+                index = int(self._group(label).attrs.get("index", 0))
+            except H5_ERRORS + (RecordingError,) as e:
+                self.skipped.append(f"stop {label!r}: unreadable ({type(e).__name__}: {e})")
+                del self._where[label]
+                continue
+            keyed.append((index, label))
+        return [label for _, label in sorted(keyed)]
 
     def stops(self) -> Iterator[StopData]:
         for label in self.stop_labels():
             yield self.stop(label)
 
     def stop(self, label: str) -> StopData:
-        g = self.file["stops"][label]
+        try:
+            return self._read_stop(label)
+        except RecordingError:
+            raise
+        except H5_ERRORS as e:
+            raise RecordingError(f"{self.path}: stop {label!r} cannot be read ({type(e).__name__}: {e}); "
+                                 "the file is damaged: copy it aside and re-record that stop with --resume") from None
+
+    def _read_stop(self, label: str) -> StopData:
+        g = self._group(label)
         missing = [k for k in self.REQUIRED_STOP if k not in g]
         if missing:
             raise RecordingError(f"{self.path}: stop {label!r} lacks dataset(s) {missing}; see docs/data-format.md")
@@ -288,17 +302,95 @@ class Recording(_OpenRecording):
             n = len(fr["frame_number"]) if "frame_number" in fr else 0
             series = FrameSeries(**{k: (fr[k][()] if k in fr else np.full(n, np.nan)) for k in FrameSeries.FIELDS})
         a = g.attrs
-        return StopData(
+
+        def attr_number(key: str, default: float) -> float:
+            raw = a.get(key, default)
+            try:
+                return float(raw)
+            except (TypeError, ValueError):
+                raise RecordingError(f"{self.path}: stop {label!r} attribute {key} is {raw!r}, not a number; "
+                                     "see docs/data-format.md") from None
+
+        def attr_json(key: str) -> dict[str, Any]:
+            try:
+                v = json.loads(a.get(key, "{}"))
+            except (TypeError, ValueError):
+                raise RecordingError(f"{self.path}: stop {label!r} attribute {key} is not valid JSON; see docs/data-format.md") from None
+            return v if isinstance(v, dict) else {}
+
+        stop = StopData(
             label=label,
-            index=int(a.get("index", 0)),
-            commanded_position_m=float(a.get("commanded_position_m", np.nan)),
-            measured_position_m=float(a.get("measured_position_m", np.nan)),
-            n_frames=int(a.get("n_frames", int(np.max(count)) if count.size else 0)),
-            settings_requested=json.loads(a.get("settings_requested", "{}")),
-            settings_read_back=json.loads(a.get("settings_read_back", "{}")),
+            index=int(attr_number("index", 0)),
+            commanded_position_m=attr_number("commanded_position_m", np.nan),
+            measured_position_m=attr_number("measured_position_m", np.nan),
+            n_frames=int(attr_number("n_frames", int(np.max(count)) if count.size else 0)),
+            settings_requested=attr_json("settings_requested"),
+            settings_read_back=attr_json("settings_read_back"),
             stats=stats,
             series=series,
             ir_mean=g["ir_mean"][()] if "ir_mean" in g else None,
             ambient_ir_mean=g["ambient_ir_mean"][()] if "ambient_ir_mean" in g else None,
             attrs=dict(a),
         )
+        check_stop(self.path, stop, (self.calibration.height, self.calibration.width))
+        return stop
+
+    def close(self) -> None:
+        for f in self._stop_files.values():
+            if f.id.valid:
+                f.close()
+        self._stop_files.clear()
+        if self.file.id.valid:
+            self.file.close()
+
+    def __enter__(self) -> "Recording":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+#: the nearest and farthest ranges a depth camera's statistics can hold, m (outside: wrong units)
+PLAUSIBLE_RANGE_M = (0.02, 70.0)
+
+
+def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
+    """Refuse statistics that cannot be right, naming the stop and the field (docs/reliability.md)."""
+    def bad(field: str, what: str, fix: str = "the file is damaged or was written wrongly; see docs/data-format.md") -> RecordingError:
+        return RecordingError(f"{path}: stop {s.label!r} {field} {what}; {fix}")
+
+    st = s.stats
+    for name in ("count", "mean_m", "m2_m2", "m3_m3", "m4_m4"):
+        arr = getattr(st, name)
+        if arr.ndim != 2 or arr.shape != st.count.shape:
+            raise bad(name, f"has shape {arr.shape}, not the stop's {st.count.shape}")
+    if shape[0] and shape[1] and st.count.shape != shape:
+        raise bad("count", f"has shape {st.count.shape}, but the camera is {shape[1]}x{shape[0]}",
+                  "a recording holds one camera resolution; record the stop again into a new file")
+    for name in ("ir_mean", "ambient_ir_mean"):
+        arr = getattr(s, name)
+        if arr is not None and arr.shape != st.count.shape:
+            raise bad(name, f"has shape {arr.shape}, not the stop's {st.count.shape}")
+    count = st.count
+    if not np.issubdtype(count.dtype, np.number) or not np.all(np.isfinite(count)) or np.any(count < 0) \
+            or np.any(count != np.round(count)):
+        raise bad("count", "holds values that are not whole numbers of samples")
+    if s.n_frames < 0 or (count.size and int(np.max(count)) > s.n_frames > 0):
+        raise bad("count", f"reaches {int(np.max(count))} samples, more than the stop's {s.n_frames} frames")
+    valid = count > 0
+    mean = st.mean_m[valid]
+    if mean.size and not np.all(np.isfinite(mean)):
+        raise bad("mean_m", f"is not finite at {int(np.sum(~np.isfinite(mean)))} pixels that have samples")
+    if mean.size:
+        med = float(np.median(mean))
+        if not PLAUSIBLE_RANGE_M[0] <= med <= PLAUSIBLE_RANGE_M[1]:
+            raise bad("mean_m", f"has a median of {med:g}, not a range in metres",
+                      "statistics must be in metres (mm divided by 1000); see docs/data-format.md")
+    two = count > 1
+    for name in ("m2_m2", "m4_m4"):
+        arr = getattr(st, name)[two]
+        if name == "m4_m4" and np.all(np.isnan(arr)):
+            continue  # optional, absent
+        if arr.size and (not np.all(np.isfinite(arr)) or np.any(arr < 0)):
+            n_bad = int(np.sum(~np.isfinite(arr) | (arr < 0)))
+            raise bad(name, f"is negative or not finite at {n_bad} pixels (a sum of squares cannot be)")

@@ -8,6 +8,7 @@ run skips completed stops without driving the stage through them.
 from __future__ import annotations
 
 import math
+import shutil
 import threading
 import time
 from dataclasses import dataclass, field
@@ -22,7 +23,10 @@ from drivers.image_regions import center_box
 from drivers.stage import Stage
 
 from .plan import Capture, Configure, Home, Move, Plan, Settle
-from .recording import CameraCalibration, FrameSeries, RecordingError, RecordingWriter
+from .disk_space import free_bytes, is_disk_full, megabytes, stop_bytes
+from .recording import CameraCalibration, FrameSeries, RecordingError
+from .recording_writer import RecordingWriter
+from .stop_journal import journal_dir
 from .stats import MeanImageAccumulator, PixelMomentAccumulator
 
 #: frames right after a settings change that may still carry the old settings
@@ -184,8 +188,17 @@ class Runner:
             return RunResult(path, recorded, skipped, aborted=True)
         except KeyboardInterrupt:
             raise RunError("run interrupted; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
+        except _DiskFull as e:
+            saved = len(recorded) + len(skipped)
+            raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; {saved} stops are saved in {path}; "
+                           f"free about {megabytes(e.need)} and rerun with --resume") from None
         except (DeviceError, RecordingError) as e:
             raise RunError(f"{e}; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
+        except OSError as e:
+            if not is_disk_full(e):
+                raise
+            saved = len(recorded) + len(skipped)
+            raise RunError(f"disk full; {saved} stops are saved in {path}; free space and rerun with --resume") from None
         self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
         return RunResult(path, recorded, skipped)
 
@@ -195,6 +208,7 @@ class Runner:
         saved = len(recorded) + len(skipped)
         if saved == 0 and created:
             path.unlink(missing_ok=True)
+            shutil.rmtree(journal_dir(path), ignore_errors=True)
             return "nothing was recorded"
         return f"{saved} of {n} stops are saved in {path}; re-run the same command with --resume to record the rest"
 
@@ -237,8 +251,23 @@ class Runner:
         shape = (info.intrinsics.height, info.intrinsics.width)
         self.progress(ProgressEvent("stop_start", step.stop, index, n_stops, n_frames=step.n_frames,
                                     text=f"at {measured_m:.3f} m" if not math.isnan(measured_m) else ""))
+        need = stop_bytes(shape, step.n_frames, keep_raw=step.keep_raw, ir=step.ir, ambient=step.ambient_frames > 0)
+        free = free_bytes(writer.path.parent)
+        if need + _RESERVE_BYTES > free:
+            raise _DiskFull(index, need + _RESERVE_BYTES - free)
         g = writer.begin_stop(step.stop, index=index, commanded_position_m=commanded_m, measured_position_m=measured_m,
-                              settings_requested=requested.to_dict(), settings_read_back=self.camera.read_settings().to_dict())
+                              settings_requested=requested.to_dict(), settings_read_back=self.camera.read_settings().to_dict(),
+                              keep_raw=step.keep_raw)
+        try:
+            self._stream(writer, g, step, index, n_stops, requested, shape, info, measured_m)
+        except BaseException as e:
+            writer.abandon_stop()
+            if isinstance(e, OSError) and is_disk_full(e):
+                raise _DiskFull(index, need) from None
+            raise
+
+    def _stream(self, writer: RecordingWriter, g, step: Capture, index: int, n_stops: int, requested: CameraSettings,
+                shape: tuple[int, int], info, measured_m: float) -> None:
         raw = writer.raw_frames(g, step.n_frames, shape) if step.keep_raw else None
         acc = PixelMomentAccumulator(shape, info.depth_scale_m)
         ir_acc = MeanImageAccumulator()
@@ -302,3 +331,13 @@ class Runner:
 
 class _Aborted(Exception):
     pass
+
+
+#: free space kept on top of a stop's size (the assembly at the end needs its own check)
+_RESERVE_BYTES = 1024 * 1024
+
+
+class _DiskFull(Exception):
+    def __init__(self, index: int, need: int):
+        super().__init__(index, need)
+        self.index, self.need = index, need

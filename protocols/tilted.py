@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any, Iterator
 
 from .capture_settings import CaptureSettings
+from .plan_values import number, whole
 from .plan import Configure, Home, Move, Plan, Settle, Step
 
 
@@ -20,8 +21,9 @@ def tilted(tilt_deg: float = 31.0, distance_m: float = 0.8, frames: int = 600, *
     `capture`: the capture settings by name (`protocols.capture_settings.CaptureSettings`).
     """
     settings = CaptureSettings.from_options("tilted", capture)
-    if frames < 2:
-        raise ValueError(f"tilted: frames={frames}; at least 2 frames are needed for a variance")
+    frames = whole("tilted", "frames", frames, 2, 1_000_000, "at least 2 frames are needed for a variance")
+    tilt_deg = number("tilted", "tilt_deg", tilt_deg, 0.0, 75.0, "degrees (the wall's angle to the image plane)")
+    distance_m = number("tilted", "distance_m", distance_m, 0.05, 100.0, "m")
     params = dict(tilt_deg=tilt_deg, distance_m=distance_m, frames=frames, **settings.to_params())
 
     def steps() -> Iterator[Step]:

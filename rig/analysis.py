@@ -23,6 +23,13 @@ class RecordingFit:
     samples: ModelData  # every pixel with two or more samples (in the --z-min/--z-max window, if given)
     fit: ModelFit  # the paper's power law
     measured: BinnedSigma  # per stop (perpendicular) or per 0.25 m window (tilted)
+    notes: list[str]  # what to know about the recording itself (interrupted, stops missing, entries skipped)
+
+
+def recording_notes(path: str | Path) -> list[str]:
+    """`Recording.notes()` of the recording at `path`."""
+    with Recording(path) as rec:
+        return rec.notes()
 
 
 def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: float | None = None) -> RecordingFit:
@@ -31,6 +38,7 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
         labels = rec.stop_labels()
         projector = rec.stop(labels[0]).projector_on if labels else True
         protocol = rec.protocol
+        notes = rec.notes()
     if z_min_m is not None or z_max_m is not None:
         samples = samples.in_range(z_min_m or 0.0, z_max_m or float("inf"))
     fit = fit_power_law(samples)
@@ -38,4 +46,4 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
         measured = pooled_sigma(samples, samples.stop, labels)
     else:
         measured = sigma_by_range(samples)
-    return RecordingFit(Path(path), protocol, projector, samples, fit, measured)
+    return RecordingFit(Path(path), protocol, projector, samples, fit, measured, notes)

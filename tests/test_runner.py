@@ -14,6 +14,7 @@ from protocols import Runner, RunError, perpendicular, tilted
 from protocols.runner import ProgressEvent, RunControl
 from rig.devices import open_devices
 from protocols.recording import Recording
+from protocols.stop_journal import journal_dir
 from protocols.stats import PixelMomentAccumulator
 from simrig import record_perpendicular
 
@@ -89,8 +90,8 @@ def test_interrupted_run_keeps_completed_stops_and_resumes(tmp_path):
     with Recording(path) as rec:
         assert rec.stop_labels() == ["0.500m", "0.750m", "1.000m", "1.250m"]
         assert "ended_utc" not in rec.attrs
-    with h5py.File(path) as f:  # the half-done stop is marked incomplete
-        assert not f["stops"]["1.500m"].attrs["complete"]
+    # the completed stops are files of their own beside the header until the run ends; the half-done one left nothing
+    assert sorted(p.name for p in journal_dir(path).iterdir()) == ["0.500m.h5", "0.750m.h5", "1.000m.h5", "1.250m.h5"]
 
     with pytest.raises(RunError, match="already exists.*--resume"):
         Runner(devices.camera, devices.stage).run(plan, path)
@@ -105,13 +106,16 @@ def test_interrupted_run_keeps_completed_stops_and_resumes(tmp_path):
     assert moves == STOPS[4:]  # completed stops are not driven to again
     with Recording(path) as rec:
         assert rec.stop_labels() == [f"{z:.3f}m" for z in STOPS]
-        assert "ended_utc" in rec.attrs
+        assert "ended_utc" in rec.attrs and rec.assembled
+    assert not journal_dir(path).exists()  # assembled: one HDF5 file, as docs/data-format.md describes
+    with h5py.File(path) as f:
+        assert sorted(f["stops"]) == sorted(f"{z:.3f}m" for z in STOPS)
 
 
 def test_resume_refuses_a_different_experiment(tmp_path):
     path, _, _ = record_perpendicular(tmp_path / "a.h5", frames=3, width=8, stops_m=[1.0])
     devices = open_devices("fake:width=8", "fake:")
-    with pytest.raises(RunError, match=r"holds a different experiment \(perpendicular\); resume it with the plan that made it, or write a new file$"):
+    with pytest.raises(RunError, match=r"holds a different experiment \(protocol 'perpendicular' in the file, 'tilted' now; .*\); resume it with the devices and plan that made it, or write a new file$"):
         Runner(devices.camera, devices.stage).run(tilted(frames=3), path, resume=True)
 
 
@@ -151,8 +155,9 @@ def test_frames_whose_metadata_disagree_stop_the_run_before_recording(tmp_path):
 
 def test_settings_out_of_range_give_one_line_error(tmp_path):
     devices = open_devices("fake:width=8", "fake:")
-    with pytest.raises(RunError, match=r"^fake-camera: exposure 500000 us is outside 1-165000 us; choose one inside.*nothing was recorded[^\n]*$"):
-        Runner(devices.camera, devices.stage).run(perpendicular(exposure_us=500000), tmp_path / "e.h5")
+    # within what some camera takes (the plan's check), outside what this one does (the device's check)
+    with pytest.raises(RunError, match=r"^fake-camera: exposure 180000 us is outside 1-165000 us; choose one inside.*nothing was recorded[^\n]*$"):
+        Runner(devices.camera, devices.stage).run(perpendicular(exposure_us=180000), tmp_path / "e.h5")
     assert not (tmp_path / "e.h5").exists()  # nothing half-written to trip over on the next run
 
 

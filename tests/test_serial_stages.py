@@ -364,3 +364,36 @@ def test_zaber_rejects_absolute_moves_after_losing_its_reference():
             stage.move_to(1.5)
         stage.home()
         assert stage.move_to(1.5) == pytest.approx(1.5, abs=1e-6)
+
+
+@pytest.mark.parametrize("kind,chatter", [("grbl", b"[MSG:chatter]\r\n"), ("grbl", b"ok\r\n"), ("zaber", b"#01 1 chatter\r\n")])
+def test_a_port_that_streams_without_end_fails_by_its_deadline(kind, chatter):
+    """A peer that never stops talking (a wrong device, a looping board) must not hang open()."""
+    import os
+    import pty
+    import tty
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    stop = threading.Event()
+
+    def talk():
+        while not stop.is_set():
+            try:
+                os.write(master, chatter * 64)  # as fast as the line takes it: never a silent moment
+            except OSError:
+                return
+
+    threading.Thread(target=talk, daemon=True).start()
+    stage = make_stage(kind, os.ttyname(slave), timeout_s=0.3)
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(StageError, match=r"no (GRBL banner|reply)|garbled reply"):  # one line, either way
+            stage.open()
+    finally:
+        stop.set()
+        elapsed = time.monotonic() - t0
+        stage.close()
+        os.close(master)
+        os.close(slave)
+    assert elapsed < 10 * 0.3 + 2.0, elapsed  # its own deadlines (a few timeouts), not forever

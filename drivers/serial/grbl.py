@@ -8,6 +8,7 @@ docs/stages.md lists them all with causes and fixes.
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -164,8 +165,8 @@ class GrblStage(Stage):
                 except GarbledReply:
                     seen.append("garbled bytes")
                     continue
-                if line is None:
-                    break
+                if line is None or time.monotonic() > deadline:
+                    break  # silence, or a port that streams without ever sending the banner: the deadline holds
                 match = _BANNER.match(line)
                 if match:
                     self.firmware = match.group(1)
@@ -190,6 +191,8 @@ class GrblStage(Stage):
             if text == "ok":
                 return
             self._check_message(text, what)
+            if time.monotonic() > deadline:  # lines keep coming, none of them the 'ok'
+                raise self.link.no_reply(what, timeout_s)
 
     def _status(self, during: str = "") -> GrblStatus:
         """Ask for a real-time status report ('?') and parse it; `during` names the command
@@ -204,6 +207,8 @@ class GrblStage(Stage):
                 return self._parse_status(text)
             if text != "ok":
                 self._check_message(text, "'?'", during)
+            if time.monotonic() > deadline:  # lines keep coming, none of them a status report
+                raise self.link.no_reply("'?'", self.timeout_s)
 
     def _parse_status(self, text: str) -> GrblStatus:
         match = _STATUS.match(text)
@@ -219,6 +224,8 @@ class GrblStage(Stage):
             x_mm = float(fields["MPos"].split(",")[0])
         except ValueError:
             raise self.link.garbled(text, "'?'") from None
+        if not math.isfinite(x_mm) or abs(x_mm) > 1e6:
+            raise self.link.garbled(text, "'?'")  # no rail is a kilometre long
         self._last_x_mm = x_mm
         return GrblStatus(match.group(1), x_mm)
 

@@ -179,13 +179,13 @@ class ZaberStage(Stage):
         deadline = time.monotonic() + self.timeout_s
         while True:
             line = self.link.read_line(deadline, what)
-            if line is None:
+            if line is None or (time.monotonic() > deadline and (not line or line[0] in "#!")):
                 raise self.link.error(
                     f"no reply to {what} within {self.timeout_s:.1f} s",
                     f"{CABLE}, that it speaks ASCII at baud={self.link.baud} and is device {self.device}",
                 )
             if not line or line[0] in "#!":
-                continue  # info and alert messages
+                continue  # info and alert messages (until the deadline: a port that streams them must not hang us)
             match = _ZABER_REPLY.match(line)
             if not match or int(match.group(1)) != self.device or int(match.group(2)) != self.axis:
                 raise self.link.garbled(line, what)

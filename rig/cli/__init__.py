@@ -9,7 +9,9 @@ module registered here) with its arguments and a `cmd_*` function.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from typing import TextIO
 
 from drivers.errors import DeviceError, FolderImportError
@@ -57,7 +59,10 @@ def main(argv: list[str] | None = None) -> int:
 
     from ..models import EffectFileError
 
+    from protocols.disk_space import is_disk_full
+
     argv = sys.argv[1:] if argv is None else list(argv)
+    previous = _terminate_like_interrupt()
     try:
         return run_command(argv)
     except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError, FolderImportError, EffectFileError) as e:
@@ -66,6 +71,26 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
         return 130
+    except OSError as e:
+        if not is_disk_full(e):
+            raise
+        where = f" writing {e.filename}" if getattr(e, "filename", None) else ""
+        print(f"rig: error: disk full{where}; free some space and run the command again", file=sys.stderr)
+        return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _raise_interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _terminate_like_interrupt():
+    """SIGTERM (a service manager, `kill`) ends a command as Ctrl-C does: completed stops saved, a resume hint."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_interrupt)
 
 
 if __name__ == "__main__":

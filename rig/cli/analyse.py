@@ -55,7 +55,10 @@ def catalogue_of(args: argparse.Namespace):
 def _model_data(path: str, z_min: float | None = None, z_max: float | None = None):
     from ..models import ModelData
 
-    d = ModelData.from_recording(path)
+    try:
+        d = ModelData.from_recording(path)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     if z_min is not None or z_max is not None:
         d = d.in_range(z_min or 0, z_max or float("inf"))
     return d
@@ -84,10 +87,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
         return _fit_model(args)
     if args.effects:
         catalogue_of(args)  # a broken effects file is an error even when no model uses it yet
-    r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
+    try:
+        r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     if args.json:
-        print(json.dumps(power_law_json(r.fit), indent=2))
+        print(json.dumps({**power_law_json(r.fit), "notes": r.notes}, indent=2))
     else:
+        for note in r.notes:
+            print(f"note: {note}")
         from ..diagnosis import headline
         from ..models import Model, power_law
 
@@ -108,8 +116,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
 
+    from ..analysis import recording_notes
+
     model = _parse_model(args.model, catalogue_of(args))
     d = _model_data(args.recording, args.z_min, args.z_max)
+    notes = recording_notes(args.recording)
     try:
         f = model.fit(d)
     except ValueError as e:
@@ -118,8 +129,10 @@ def _fit_model(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
                           "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
-                          "within_noise": h.within_noise}, indent=2))
+                          "within_noise": h.within_noise, "notes": notes}, indent=2))
         return 0
+    for note in notes:
+        print(f"note: {note}")
     print(f.report())
     print(f"    headline error: {h}")
     if not args.no_held_out:
@@ -153,8 +166,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose, render_text
-    from ..reports.diagnosis_html import write_html
-    from ..reports.diagnosis_plots import write_plots
 
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
@@ -165,11 +176,40 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         diag = diagnose(d, model, source=args.recording, catalogue=cat)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    from ..analysis import recording_notes
+
+    for note in recording_notes(args.recording):
+        print(f"note: {note}")
     print(render_text(diag))
-    plots = write_plots(diag, out)
-    page = write_html(diag, plots, out)
+    plots, page = _write_report(diag, out)
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return 0
+
+
+def _write_report(diag, out: Path) -> tuple[list[Path], Path]:
+    """Plots and page are made in a folder beside `out`, then moved in file by file (each move atomic), and
+    the previous run's diagnosis files that this one did not make are removed: a diagnosis killed while it
+    works leaves the previous report whole, never a mix of old and new plots."""
+    import os
+    import shutil
+
+    from ..reports.diagnosis_html import write_html
+    from ..reports.diagnosis_plots import write_plots
+
+    out.mkdir(parents=True, exist_ok=True)
+    work = out.parent / f".{out.name}.{os.getpid()}.writing"
+    try:
+        plots = write_plots(diag, work)
+        page = write_html(diag, plots, work)
+        made = [*plots, page]
+        for old in out.glob("diagnosis*"):
+            if old.is_file() and old.name not in {p.name for p in made}:
+                old.unlink()
+        for p in made:
+            os.replace(p, out / p.name)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return [out / p.name for p in plots], out / page.name
 
 
 def _check_writable(folder: Path) -> None:

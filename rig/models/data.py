@@ -354,6 +354,9 @@ def load_samples(recording: Recording, *, min_count: int = 2) -> ModelData:
         _add_stop_facts(table, stop)
     if not parts["z_m"] or sum(len(a) for a in parts["z_m"]) == 0:
         raise ValueError(f"{recording.path}: no pixel has 2 or more valid samples; nothing to fit (check the stops and the camera's fill rate)")
+    if not any(np.any(a > 0) for a in parts["m2_m2"]):
+        raise ValueError(f"{recording.path}: every pixel's samples are identical (zero variance), so there is no noise to "
+                         "fit; the frames are copies of one image: record or import frames captured one after another")
     t0 = np.nanmin(table["time_s"]) if np.isfinite(table["time_s"]).any() else 0.0
     stops = StopTable(tuple(table["label"]), np.array(table["frames"]), np.array(table["series_var_inv2"]),
                       np.array(table["n_valid"]), np.array(table["time_s"]) - t0)

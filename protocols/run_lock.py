@@ -1,0 +1,85 @@
+"""One writer per recording: a lock file beside it, holding the writer's PID, host and start time.
+
+HDF5's own file locking is often off (NFS, HDF5_USE_FILE_LOCKING=FALSE), and then two writers
+both report success and corrupt the file. `run.h5.lock` is created with O_CREAT | O_EXCL, which
+is atomic on local file systems and on NFSv3+; a lock whose process is gone (same host, PID not
+alive) is stale and taken over. Readers use `holder()` to say that a file is still being written.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import socket
+from pathlib import Path
+
+from .recording_errors import RecordingError
+
+
+def lock_path(path: Path) -> Path:
+    return path.with_name(path.name + ".lock")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def holder(path: Path) -> dict | None:
+    """Who holds the lock on `path` (pid, host, started_utc), if a live process does."""
+    lp = lock_path(Path(path))
+    try:
+        info = json.loads(lp.read_text())
+        pid, host = int(info["pid"]), str(info["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if host == socket.gethostname() and not _alive(pid):
+        return None
+    return info
+
+
+class RunLock:
+    """`with RunLock(path):` or acquire()/release()."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.file = lock_path(self.path)
+        self.held = False
+
+    def acquire(self) -> "RunLock":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        info = {"pid": os.getpid(), "host": socket.gethostname(),
+                "started_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+        for _ in range(2):
+            try:
+                fd = os.open(self.file, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                who = holder(self.path)
+                if who is not None:
+                    raise RecordingError(
+                        f"{self.path} is being written by PID {who['pid']} on {who['host']} (since {who.get('started_utc', '?')}); "
+                        f"wait for that run to end or stop it (a stale lock is {self.file})") from None
+                self.file.unlink(missing_ok=True)  # stale: its process is gone
+                continue
+            with os.fdopen(fd, "w") as f:
+                json.dump(info, f)
+            self.held = True
+            return self
+        raise RecordingError(f"could not take the lock {self.file}; remove it if no run is writing {self.path}")
+
+    def release(self) -> None:
+        if self.held:
+            self.file.unlink(missing_ok=True)
+            self.held = False
+
+    def __enter__(self) -> "RunLock":
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

@@ -1,0 +1,101 @@
+"""Kills at exact instants (tests/crash_child.py), and at random ones: every stop a run reported done is
+readable afterwards, a run with nothing done starts again cleanly, and --resume completes the recording."""
+
+from __future__ import annotations
+
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import pytest
+
+from protocols.recording import Recording
+from protocols.run_lock import lock_path
+from protocols.stop_journal import journal_dir
+
+CHILD = Path(__file__).with_name("crash_child.py")
+ALL = [f"{z:.3f}m" for z in (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0)]
+
+# (point, which call): the header, a stop's in-memory image, the renames, HDF5's flush and close inside a
+# stop, and every step of the assembly at the end
+EXACT = [
+    ("before:write_bytes_durably", 1), ("after:write_bytes_durably", 1),  # the header
+    ("before:write_bytes_durably", 4), ("after:write_bytes_durably", 4),  # the third stop
+    ("before:replace", 1), ("after:replace", 1), ("before:replace", 5), ("after:replace", 5),
+    ("before:fsync_dir", 3), ("before:h5_flush", 2), ("after:h5_flush", 3), ("before:h5_close", 4),
+    ("before:copyfile", 1), ("after:copyfile", 1),  # assembly: the header's copy
+    ("before:h5_copy", 1), ("before:h5_copy", 7), ("after:h5_copy", 11),  # assembly: copying the stops
+    ("before:commit", 1), ("after:commit", 1), ("before:rmtree", 1),  # assembly: its rename, the clean-up
+]
+EXACT_RAW = [("before:commit", 2), ("after:commit", 2), ("before:h5_close", 3), ("after:h5_close", 6)]
+
+
+def child(out: Path, point: str = "none", n: int = 0, *flags: str, timeout: float = 120) -> tuple[int, list[str]]:
+    p = subprocess.run([sys.executable, str(CHILD), str(out), point, str(n), *flags], capture_output=True, text=True,
+                       timeout=timeout)
+    assert "Traceback" not in p.stderr, p.stderr
+    return p.returncode, [line.split()[1] for line in p.stdout.splitlines() if line.startswith("done ")]
+
+
+def check_after_kill(out: Path, done: list[str], raw: bool) -> None:
+    """What was reported done is readable; then the run is finished by a re-run or --resume."""
+    flags = ["--raw"] if raw else []
+    if done:
+        with Recording(out) as rec:
+            labels = rec.stop_labels()
+            assert set(done) <= set(labels), (done, labels)
+            for label in labels:
+                s = rec.stop(label)
+                assert s.stats.count.shape == (9, 16) and s.n_frames == 6
+            assert rec.skipped == []
+        code, again = child(out, "none", 0, "--resume", *flags)
+    else:
+        code, again = child(out, "none", 0, *flags)  # nothing saved: a new run is not blocked by the leftovers
+    assert code == 0, again
+    with Recording(out) as rec:
+        assert rec.stop_labels() == ALL and rec.assembled and "ended_utc" in rec.attrs
+        for label in ALL:
+            rec.stop(label)
+    assert not journal_dir(out).exists() and not lock_path(out).exists()
+    with h5py.File(out) as f:  # one plain HDF5 file again, as docs/data-format.md describes
+        assert sorted(f["stops"]) == sorted(ALL) and all(f["stops"][k].attrs["complete"] for k in ALL)
+        if raw:
+            assert f["stops"]["1.000m"]["raw_depth"].shape == (6, 9, 16)
+
+
+@pytest.mark.parametrize("point,n", EXACT)
+def test_a_kill_at_an_exact_instant_loses_nothing_reported_done(tmp_path, point, n):
+    out = tmp_path / "run.h5"
+    code, done = child(out, point, n)
+    assert code == -signal.SIGKILL, (code, done)
+    check_after_kill(out, done, raw=False)
+
+
+@pytest.mark.parametrize("point,n", EXACT_RAW)
+def test_a_kill_while_raw_frames_are_written_loses_nothing_reported_done(tmp_path, point, n):
+    out = tmp_path / "run.h5"
+    code, done = child(out, point, n, "--raw")
+    assert code == -signal.SIGKILL, (code, done)
+    check_after_kill(out, done, raw=True)
+
+
+def test_kills_at_random_instants(tmp_path):
+    t0 = time.monotonic()
+    code, _ = child(tmp_path / "whole.h5")
+    whole_s = time.monotonic() - t0
+    assert code == 0
+    rng = random.Random(14)
+    for trial in range(8):
+        out = tmp_path / f"r{trial}.h5"
+        proc = subprocess.Popen([sys.executable, str(CHILD), str(out), "none", "0"], stdout=subprocess.PIPE, text=True)
+        time.sleep(rng.uniform(0.3, 1.0) * whole_s)
+        proc.send_signal(signal.SIGKILL)
+        stdout, _ = proc.communicate()
+        done = [line.split()[1] for line in stdout.splitlines() if line.startswith("done ")]
+        if proc.returncode == 0:
+            continue  # it finished first
+        check_after_kill(out, done, raw=False)

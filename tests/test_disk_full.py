@@ -1,0 +1,110 @@
+"""A full disk, on a real small file system (a size-limited tmpfs: root can mount one; CI runs as root):
+one line, a non-zero exit, no traceback, no segfault, every finished stop kept, and --resume finishes
+once there is room. Without root, the same runs on a writer that fails with ENOSPC on cue."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from protocols.recording import Recording
+from protocols.stop_journal import journal_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMERA = "fake:width=106,height=60,seed=2"
+
+
+def _mount(where: Path, size_kb: int) -> bool:
+    where.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        return False
+    p = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kb}k", "tmpfs", str(where)], capture_output=True)
+    return p.returncode == 0
+
+
+def _resize(where: Path, size_kb: int) -> None:
+    subprocess.run(["mount", "-o", f"remount,size={size_kb}k", str(where)], check=True)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """(folder on a small file system, resize function) or (folder, None) where a tmpfs cannot be mounted."""
+    where = tmp_path / "disk"
+    mounted = _mount(where, 2600)
+    yield where, (lambda kb: _resize(where, kb)) if mounted else None
+    if mounted:
+        subprocess.run(["umount", "-l", str(where)])
+
+
+#: without root: the run in a process whose writes of stop files fail with ENOSPC after `budget` bytes
+INJECTED = textwrap.dedent('''
+    import errno, sys
+    sys.path.insert(0, {root!r})
+    from protocols import disk_space, stop_journal
+    budget = [int(sys.argv[1])]
+    real = stop_journal.write_bytes_durably
+    def write(data, final):
+        if len(data) > budget[0]:
+            raise OSError(errno.ENOSPC, "No space left on device", str(final))
+        budget[0] -= len(data)
+        return real(data, final)
+    stop_journal.write_bytes_durably = write
+    disk_space.free_bytes = lambda path: 10**12  # the check before each stop is passed; the write fails
+    from rig.cli import main
+    sys.exit(main(sys.argv[2:]))
+''')
+
+
+def rig(*args: str, budget: int | None = None) -> subprocess.CompletedProcess:
+    if budget is None:
+        cmd = [sys.executable, "-c", "import sys; from rig.cli import main; sys.exit(main(sys.argv[1:]))", *args]
+    else:
+        cmd = [sys.executable, "-c", INJECTED.format(root=str(ROOT)), str(budget), *args]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+
+
+def test_a_run_that_fills_the_disk_stops_with_one_line_and_resumes(small_disk):
+    where, resize = small_disk
+    out = where / "run.h5"
+    args = ["run", "--protocol", "perpendicular", "--camera", CAMERA, "--stage", "fake:", "--frames", "20", "-o", str(out)]
+    p = rig(*args, budget=None if resize else 1_200_000)
+    assert p.returncode == 2, (p.returncode, p.stderr)  # not 139 (a segfault), not a traceback
+    assert "Traceback" not in p.stderr, p.stderr
+    msg = p.stderr.strip().splitlines()[-1]  # progress lines above it, then the one line that says what happened
+    assert "disk full at stop" in msg and "of 11" in msg and "--resume" in msg and "MB" in msg, msg
+    saved = int(msg.split("; ")[1].split()[0])
+    assert saved >= 1
+    with Recording(out) as rec:
+        assert len(rec.stop_labels()) == saved and rec.skipped == []
+        for label in rec.stop_labels():
+            rec.stop(label)
+    if resize:
+        resize(40_000)
+    p = rig(*args, "--resume")
+    assert p.returncode == 0, p.stderr
+    with Recording(out) as rec:
+        assert len(rec.stop_labels()) == 11 and rec.assembled
+    assert not journal_dir(out).exists()
+
+
+def test_an_import_that_fills_the_disk_leaves_nothing(small_disk, tmp_path):
+    from simrig import record_perpendicular
+    from test_import import dump
+
+    where, resize = small_disk
+    live = tmp_path / "live.h5"
+    record_perpendicular(live, seed=3, width=106, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0, 2.5, 3.0], keep_raw=True)
+    src = dump(live, tmp_path / "frames")
+    out = where / "wall.h5"
+    if resize:
+        resize(1900)
+    p = rig("import", str(src), "-o", str(out), budget=None if resize else 600_000)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "Traceback" not in p.stderr and "disk full at stop" in p.stderr.strip().splitlines()[-1], p.stderr
+    assert "free about" in p.stderr and "stop 1 of" not in p.stderr  # it stopped part-way, not before starting
+    assert list(where.iterdir()) == [], list(where.iterdir())  # no hidden temporary file left filling the disk

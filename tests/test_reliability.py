@@ -1,0 +1,166 @@
+"""Wrong files and second writers: resume checks identity, one writer at a time, leftovers do not trap,
+bad plan values are one line (docs/reliability.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import h5py
+import pytest
+
+from protocols.perpendicular import perpendicular
+from protocols.recording import Recording, RecordingError
+from protocols.recording_writer import RecordingWriter
+from protocols.run_lock import RunLock, lock_path
+from protocols.runner import Runner, RunError
+from rig.cli import main
+from rig.devices import open_devices
+
+PLAN = dict(stops_m=[0.5, 1.0, 1.5], frames_per_stop=4)
+
+
+def run(path, camera="fake:width=16,height=9", stage="fake:", resume=False, **plan):
+    d = open_devices(camera, stage)
+    return Runner(d.camera, d.stage, sleep=lambda s: None).run(perpendicular(**{**PLAN, **plan}), path, resume=resume)
+
+
+def test_resume_refuses_another_camera_and_names_what_differs(tmp_path):
+    path = tmp_path / "r.h5"
+    d = open_devices("fake:width=16,height=9,fail_at_frame=6", "fake:")
+    with pytest.raises(RunError):
+        Runner(d.camera, d.stage, sleep=lambda s: None).run(perpendicular(**PLAN), path)
+    with pytest.raises(RunError, match=r"holds a different experiment \(camera width 16 in the file, 24 now; "
+                                       r"camera height 9 in the file, 14 now\)"):
+        run(path, camera="fake:width=24,height=14", resume=True)
+    with Recording(path) as rec:
+        assert all(rec.stop(s).stats.count.shape == (9, 16) for s in rec.stop_labels())  # nothing mixed in
+    run(path, resume=True)  # the same camera: goes on
+    with Recording(path) as rec:
+        assert len(rec.stop_labels()) == 3
+
+
+def test_resume_refuses_a_file_that_is_not_a_recording(tmp_path):
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = [1, 2, 3]
+    before = other.read_bytes()
+    with pytest.raises(RunError, match="is not a rig recording"):
+        run(other, resume=True)
+    assert other.read_bytes() == before
+
+
+def test_resuming_a_complete_file_changes_nothing(tmp_path):
+    path = tmp_path / "r.h5"
+    run(path)
+    with Recording(path) as rec:
+        ended = rec.attrs["ended_utc"]
+    time.sleep(1.1)
+    result = run(path, resume=True)
+    assert result.recorded == [] and len(result.skipped) == 3
+    with Recording(path) as rec:
+        assert rec.attrs["ended_utc"] == ended
+
+
+def test_a_second_writer_is_refused_with_who_holds_the_file(tmp_path):
+    path = tmp_path / "r.h5"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from protocols.run_lock import RunLock; "
+                               f"RunLock(__import__('pathlib').Path({str(path)!r})).acquire(); print('held', flush=True); "
+                               "time.sleep(60)"], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": os.getcwd()})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(RunError, match=rf"is being written by PID {holder.pid} .*wait for that run to end"):
+            run(path)
+    finally:
+        holder.kill()
+        holder.wait()
+    run(path)  # the lock of a process that is gone is stale, and taken over
+    assert not lock_path(path).exists()
+
+
+def test_a_reader_says_the_file_is_still_being_written(tmp_path, capsys):
+    path = tmp_path / "r.h5"
+    d = open_devices("fake:width=16,height=9,fail_at_frame=10", "fake:")
+    with pytest.raises(RunError):
+        Runner(d.camera, d.stage, sleep=lambda s: None).run(perpendicular(**PLAN), path)
+    lock = RunLock(path).acquire()  # as if a run were writing it now (this process is alive)
+    try:
+        assert main(["fit", str(path), "--json"]) == 0
+        notes = json.loads(capsys.readouterr().out)["notes"]
+        assert any(f"still being written by PID {os.getpid()} (2 stops complete so far)" in n for n in notes), notes
+    finally:
+        lock.release()
+    assert main(["fit", str(path), "--json"]) == 0
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    assert any("2 of 3 planned stops (missing 1.500m)" in n for n in notes), notes
+
+
+def test_a_leftover_with_no_complete_stop_is_replaced(tmp_path):
+    path = tmp_path / "r.h5"
+    path.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(88))  # the 96-byte file a kill before the first flush left
+    run(path)
+    with Recording(path) as rec:
+        assert len(rec.stop_labels()) == 3
+    with pytest.raises(RecordingError, match="already exists"):
+        RecordingWriter(path)  # one with stops is never replaced
+    notes = tmp_path / "notes.h5"
+    notes.write_text("somebody's notes, not a recording")
+    with pytest.raises(RecordingError, match="already exists"):
+        RecordingWriter(notes)  # nor is anything that is not a torn rig file
+    assert notes.read_text() == "somebody's notes, not a recording"
+
+
+@pytest.mark.parametrize("text,message", [
+    ('exposure_us = "auto"', "exposure_us = 'auto' is not a number"),
+    ("frames_per_stop = nan", "frames_per_stop = nan is outside 2 to"),
+    ("frames_per_stop = 2.5", "frames_per_stop = 2.5 is not a whole number"),
+    ("stops_m = [0.5, inf]", "stops_m = inf is outside"),
+    ("gain = true", "gain = True is not a number"),
+])
+def test_bad_values_in_an_experiment_file_are_one_line(tmp_path, capsys, text, message):
+    toml = tmp_path / "e.toml"
+    toml.write_text(f'[experiment]\nprotocol = "perpendicular"\ncamera = "fake:width=8"\noutput = "o.h5"\n[parameters]\n{text}\n')
+    assert main(["run", str(toml)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_frames_as_a_float_that_is_whole_is_accepted(tmp_path):
+    assert perpendicular(frames_per_stop=1e3).params["frames_per_stop"] == 1000
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--protocol", "tilted", "--tilt-deg", "180"], "tilt_deg = 180.0 is outside 0 to 75"),
+    (["--protocol", "tilted", "--tilt-deg", "nan"], "tilt_deg = nan is outside 0 to 75"),
+    (["--protocol", "perpendicular", "--camera", "fake:width=100000"], "100000x56604 px is outside"),
+])
+def test_bad_values_on_the_command_line_are_one_line(tmp_path, capsys, args, message):
+    assert main(["run", *args, "-o", str(tmp_path / "o.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_sigterm_ends_a_run_like_ctrl_c(tmp_path):
+    out = tmp_path / "r.h5"
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from rig.cli import main; sys.exit(main(sys.argv[1:]))",
+                             "run", "--protocol", "perpendicular", "--camera", "fake:width=106",
+                             "--stage", "fake:", "--frames", "60", "-o", str(out)],
+                            stderr=subprocess.PIPE, text=True, cwd=os.getcwd())
+    seen = []
+    for line in proc.stderr:  # progress goes to stderr; stop after the second stop is done
+        seen.append(line)
+        if "done:" in line and len([s for s in seen if "done:" in s]) == 2:
+            proc.send_signal(15)
+            break
+    rest = proc.stderr.read()
+    assert proc.wait(timeout=60) == 2, rest
+    last = rest.strip().splitlines()[-1]
+    assert "run interrupted;" in last and "of 11 stops are saved" in last and "--resume" in last, rest
+    assert "Traceback" not in rest
+    with Recording(out) as rec:
+        assert len(rec.stop_labels()) >= 2
