@@ -19,6 +19,9 @@ from .result import ModelFit
 if TYPE_CHECKING:
     from .composition import Model
 
+#: the Nelder-Mead polish's budget of objective evaluations, per free parameter (plus one)
+NM_EVALUATIONS_PER_PARAMETER = 100
+
 
 def _to_free(x: float, p: Param) -> float:
     lo, hi = p.min, p.max
@@ -32,7 +35,7 @@ def _to_free(x: float, p: Param) -> float:
 def _from_free(y: float, p: Param) -> float:
     lo, hi = p.min, p.max
     if math.isfinite(lo) and math.isfinite(hi):
-        return lo + (hi - lo) / (1 + math.exp(-y))
+        return lo + (hi - lo) / (1 + math.exp(-min(max(y, -700.0), 700.0)))  # a wild step must not overflow
     return y
 
 
@@ -75,7 +78,7 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
     def unpack(y: np.ndarray) -> dict[str, float]:
         v = dict(values)
         for (n, p), yi in zip(free, y):
-            v[n] = math.exp(yi) if n == "k" else _from_free(yi, p)
+            v[n] = math.exp(min(max(yi, -700.0), 700.0)) if n == "k" else _from_free(yi, p)
         return v
 
     def pack(v: dict[str, float]) -> np.ndarray:
@@ -105,9 +108,12 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
     with np.errstate(all="ignore"):
         for y0 in starts:
             r = minimize(objective, y0, method="L-BFGS-B", options={"maxiter": 500, "ftol": 1e-15, "gtol": 1e-10})
-            # polish with Nelder-Mead when L-BFGS-B stops early on a flat ridge
+            # polish with Nelder-Mead when L-BFGS-B stops early on a flat ridge; bounded, because every
+            # evaluation visits every pixel (unbounded, a diagnosis could spend an hour polishing candidates)
             if not r.success and len(y0) > 1:
-                r2 = minimize(objective, r.x, method="Nelder-Mead", options={"maxiter": 2000, "xatol": 1e-8, "fatol": 1e-14})
+                budget = NM_EVALUATIONS_PER_PARAMETER * (len(y0) + 1)
+                r2 = minimize(objective, r.x, method="Nelder-Mead",
+                              options={"maxiter": budget, "maxfev": budget, "xatol": 1e-8, "fatol": 1e-14})
                 if r2.fun <= r.fun:
                     r = r2
             if res is None or r.fun < res.fun:
