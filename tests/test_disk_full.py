@@ -108,3 +108,29 @@ def test_an_import_that_fills_the_disk_leaves_nothing(small_disk, tmp_path):
     assert "Traceback" not in p.stderr and "disk full at stop" in p.stderr.strip().splitlines()[-1], p.stderr
     assert "free about" in p.stderr and "stop 1 of" not in p.stderr  # it stopped part-way, not before starting
     assert list(where.iterdir()) == [], list(where.iterdir())  # no hidden temporary file left filling the disk
+
+
+def test_a_report_that_fills_the_disk_is_one_line_and_keeps_the_old_one(small_disk, tmp_path, monkeypatch, capsys):
+    import errno
+
+    from rig.cli import main
+    from rig.simulation.scenarios import hidden_scenario, record_scenario
+
+    where, resize = small_disk
+    rec = record_scenario(hidden_scenario(5, "censoring", width=40, frames=12), tmp_path / "c.h5")
+    out = where / "report"
+    out.mkdir()
+    (out / "diagnosis.html").write_text("the previous report")
+    if resize:
+        resize(120)  # room for the old report, not for six plots
+    else:
+        from rig.reports import diagnosis_plots
+
+        def full(*a, **k):
+            raise OSError(errno.ENOSPC, "No space left on device", str(out / "diagnosis-residuals.png"))
+        monkeypatch.setattr(diagnosis_plots, "write_plots", full)
+    assert main(["diagnose", str(rec), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rig: error: disk full") and "free some space" in err[0], err
+    assert (out / "diagnosis.html").read_text() == "the previous report"  # the old report whole, nothing mixed in
+    assert sorted(p.name for p in where.iterdir()) == ["report"]  # the work folder removed
