@@ -34,10 +34,17 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
         b = compare_bins(d.select(sel), _subset(before.predict(d), sel), groups[sel], c[sel])
         ax.errorbar(b.center, np.exp(b.log_ratio), yerr=2 * b.se_log * np.exp(b.log_ratio), fmt="o", ms=4, capsize=2,
                     label=f"measured / {before.model.name} (±2 s.e.)")
+        # what the model with the shape predicts against the model without it, in the same bins as the points
+        # (the joint refit moves k and the catalogue terms too, so the shape alone is not on the points' scale)
+        var_before, var_after = before.predict(d).var_m2, after.predict(d).var_m2
+        ids = np.unique(groups[sel])
+        centre = [float(np.median(c[groups == g])) for g in ids]
+        ratio = [float(np.sqrt(var_after[groups == g].sum() / var_before[groups == g].sum())) for g in ids]
+        ax.plot(centre, ratio, "-", color="tab:green", lw=2, label=f"with {term.name} / without (the fitted model)")
         grid = np.linspace(np.nanmin(c), np.nanmax(c), 200)
-        ax.plot(grid, np.exp(term.log_multiplier(grid, after.values)), "-", color="tab:green",
-                label=f"{term.name}: the missing effect's shape")
-        ax.plot(term.knots, np.exp(term.log_multiplier(term.knots, after.values)), "s", color="tab:green", ms=5)
+        ax.plot(grid, np.exp(term.log_multiplier(grid, after.values)), "--", color="tab:green", lw=1,
+                label=f"{term.name} alone: the missing effect's shape")
+        ax.plot(term.knots, np.exp(term.log_multiplier(term.knots, after.values)), "s", color="tab:green", ms=4)
         ax.set_xlabel(f"{term.covariate} [{unit}]")
         ax.set_ylabel("σ multiplier")
     elif isinstance(term, EmpiricalPosition):
