@@ -239,10 +239,10 @@ class Recording:
         (which planned stops are missing), entries skipped as unreadable, a single stop."""
         labels = self.stop_labels()
         out = []
-        if self.writer is not None:
+        if self.in_progress:
             out.append(f"still being written by PID {self.writer.get('pid')} ({len(labels)} stops complete so far)")
         planned = self.protocol_params.get("stops_m")
-        if isinstance(planned, list) and planned and self.writer is None:
+        if isinstance(planned, list) and planned and not self.in_progress:
             try:
                 want = [f"{float(z):.3f}m" for z in planned]
             except (TypeError, ValueError):
@@ -251,7 +251,7 @@ class Recording:
             if missing:
                 out.append(f"{len(want) - len(missing)} of {len(want)} planned stops (missing {', '.join(missing[:5])}"
                            f"{', ...' if len(missing) > 5 else ''}); rig run ... --resume records the rest")
-        elif "ended_utc" not in self.attrs and self.writer is None and labels:
+        elif "ended_utc" not in self.attrs and not self.in_progress and labels:
             out.append("the run did not finish (no ended_utc); rig run ... --resume records the rest")
         out += [f"skipped {s}" for s in self.skipped]
         if len(labels) == 1 and self.protocol != "tilted":

@@ -168,9 +168,6 @@ class RecordingWriter:
             pass
         return done
 
-    def stop_count(self) -> int:
-        return len(self.completed_stops())
-
     def begin_stop(self, label: str, *, index: int, commanded_position_m: float, measured_position_m: float,
                    settings_requested: dict[str, Any], settings_read_back: dict[str, Any],
                    keep_raw: bool = False) -> h5py.Group:
