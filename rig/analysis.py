@@ -26,12 +26,6 @@ class RecordingFit:
     notes: list[str]  # what to know about the recording itself (interrupted, stops missing, entries skipped)
 
 
-def recording_notes(path: str | Path) -> list[str]:
-    """`Recording.notes()` of the recording at `path`."""
-    with Recording(path) as rec:
-        return rec.notes()
-
-
 def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: float | None = None) -> RecordingFit:
     with Recording(path) as rec:
         samples = load_samples(rec)

@@ -53,15 +53,20 @@ def catalogue_of(args: argparse.Namespace):
 
 
 def _model_data(path: str, z_min: float | None = None, z_max: float | None = None):
-    from ..models import ModelData
+    """(ModelData of the recording, its notes), from one opening of the file."""
+    from protocols.recording import Recording
+
+    from ..models import load_samples
 
     try:
-        d = ModelData.from_recording(path)
+        with Recording(path) as rec:
+            d = load_samples(rec).positive_variance()
+            notes = rec.notes()
     except ValueError as e:
         raise UsageError(str(e)) from None
     if z_min is not None or z_max is not None:
         d = d.in_range(z_min or 0, z_max or float("inf"))
-    return d
+    return d, notes
 
 
 def _parse_model(text: str, catalogue=None):
@@ -116,11 +121,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
 
-    from ..analysis import recording_notes
-
     model = _parse_model(args.model, catalogue_of(args))
-    d = _model_data(args.recording, args.z_min, args.z_max)
-    notes = recording_notes(args.recording)
+    d, notes = _model_data(args.recording, args.z_min, args.z_max)
     try:
         f = model.fit(d)
     except ValueError as e:
@@ -143,7 +145,9 @@ def _fit_model(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
 
-    d = _model_data(args.recording)
+    d, notes = _model_data(args.recording)
+    for note in notes:
+        print(f"note: {note}")
     cat = catalogue_of(args)
     models = [_parse_model(m, cat) for m in args.models.split(",")]
     rows = []
@@ -170,15 +174,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
     _check_writable(out)
-    d = _model_data(args.recording)
+    d, notes = _model_data(args.recording)
     model = _parse_model(args.model, cat) if args.model else None
     try:
         diag = diagnose(d, model, source=args.recording, catalogue=cat)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    from ..analysis import recording_notes
-
-    for note in recording_notes(args.recording):
+    for note in notes:
         print(f"note: {note}")
     print(render_text(diag))
     plots, page = _write_report(diag, out)
