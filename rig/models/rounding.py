@@ -15,12 +15,14 @@ f in [0, 1/2], computed once from the sums above; beyond S_MAX it uses Sheppard'
 
 A sample variance s2 = M2 / (n - 1) is unbiased for Var[R], but not once its own mean has been
 used to place phi: with two levels, s2 = n / (n - 1) f (1 - f) exactly, while Var[R] at the
-phi that reproduces f is f (1 - f). `expected_sample_variance` multiplies by 1 + b(s) / (n - 1),
-b(s) = 1 / (1 + (s / 0.18)^6): 1 where two levels dominate (s < 0.1), 0 in Sheppard's regime
-(s > 0.3). Against simulated rounded normals (n = 30, 100 and 300, tests/test_rounding.py) this
-holds to 0.5 % averaged over where the means sit; pixel by pixel it is an approximation: for s near
-0.2-0.3 and a measured mean within 0.1 q of a level (the pixels whose samples happened to leave that
-level least), the sample variance falls below the prediction by up to 5 / (n - 1) of it.
+phi that reproduces f is f (1 - f); and a pixel whose samples are all equal (s2 = 0) is not in
+the data at all. `expected_sample_variance` therefore takes, for spreads up to
+`rounding_table.S_GRID[-1]` (0.7 q), the exact E[s2 | measured mean, s2 > 0] from
+`rig.models.rounding_table` (generating functions over the counts on each level, averaged over
+where the true mean sits). Above it the conditioning is below 1e-3 of the variance, and
+Var[R] (1 + b(s) / (n - 1)) with b(s) = 1 / (1 + (s / 0.18)^6) is used; the two are blended
+over 0.55-0.7 q. Against simulated rounded normals (tests/test_rounding.py) this holds pixel by
+pixel, in bands of the measured offset, to the simulation's own standard error.
 """
 
 from __future__ import annotations
@@ -30,7 +32,11 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import ndtr
 
+from .rounding_table import S_GRID, conditional_variance
+
 S_MIN, S_MAX = 0.02, 3.0
+#: spreads (units of q) over which the exact table hands over to the approximation
+BLEND = (0.55, 0.7)
 _N_S, _N_F = 120, 101
 
 
@@ -100,6 +106,18 @@ def grid_offset(mean_units: np.ndarray) -> np.ndarray:
 
 
 def expected_sample_variance(s: np.ndarray, f: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """E[s2] of a pixel given its measured offset f (units of q^2), and the fourth central moment (q^4)."""
+    """E[s2 | measured offset f, s2 > 0] of a pixel (units of q^2), and the fourth central moment (q^4)."""
+    s = np.asarray(s, dtype=float)
+    n = np.asarray(n, dtype=float)
     var, mu4 = rounded_moments(s, f)
-    return var * (1.0 + conditioning(s) / np.maximum(np.asarray(n, dtype=float) - 1.0, 1.0)), mu4
+    approx = var * (1.0 + conditioning(s) / np.maximum(n - 1.0, 1.0))
+    s_b, f_b, n_b = np.broadcast_arrays(s, f, n)
+    narrow = s_b < S_GRID[-1]
+    if not np.any(narrow):
+        return approx, mu4
+    exact = np.array(np.broadcast_to(approx, s_b.shape), dtype=float)
+    exact[narrow] = conditional_variance(s_b[narrow], f_b[narrow], n_b[narrow])
+    # blend over BLEND (ln s) so the prediction stays smooth where the table ends
+    lo, hi = np.log(BLEND[0]), np.log(S_GRID[-1])
+    w = np.clip((np.log(np.maximum(s_b, 1e-300)) - lo) / (hi - lo), 0.0, 1.0)
+    return (1.0 - w) * exact + w * approx, mu4
