@@ -83,3 +83,11 @@ def test_held_out_score_prefers_the_true_model(tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     nll = [float(line.split()[-1]) for line in lines if line.startswith("active")]
     assert nll[1] < nll[0]
+
+
+def test_a_coarse_unit_the_approximate_conditioning_missed_ends_within_noise(tmp_path):
+    """Seed 1004 (a 1.39 mm unit, sigma 0.25 q at the near stop): with the rounded variance conditioned
+    approximately on the pixel's mean, the near stop read 1 % above the model and the verdict was 'beyond
+    noise: sigma by brightness'; conditioned exactly (rig/models/rounding_table.py) it is within noise."""
+    t = run_trial("coarse_depth_unit", 1004, tmp_path)
+    assert t.correct and t.within_noise, (t.path, t.error_after_pct, t.noise_pct, t.worst)
