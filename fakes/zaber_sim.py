@@ -3,9 +3,23 @@
 One device (number `device`, default 1) with one axis. Commands look like
 `/1 1 move abs 5249344` and every command gets one reply such as `@01 1 OK BUSY -- 0`,
 `@01 1 OK IDLE WR 15748031` or `@01 1 RJ IDLE -- BADDATA`: device, axis, OK/RJ, BUSY/IDLE,
-the highest-priority warning flag (`--` for none), then data. Understood: the empty command
-(status), home, move abs, move rel, stop, get pos, get limit.min, get limit.max,
-get maxspeed, warnings, warnings clear. Positions are in microsteps of `microstep_um`.
+the highest-priority warning flag (`--` for none), then data. Positions are in microsteps.
+
+What it follows of the Zaber ASCII protocol manual (firmware 7), feature by feature:
+- message format `/[device] [axis] [id] command[:CC]`: device 0 (or none) is every device, axis 0
+  (or none) the device itself; an optional message id 0-99 is echoed in the reply
+  (`@01 1 07 OK IDLE -- 0`); an optional checksum `:CC` (two hex digits, the two's complement of the
+  byte sum of everything between `/` and `:`) is checked, and a message whose checksum is wrong is
+  dropped without a reply, as a corrupted message would be; with `comm.checksum 1` the device appends
+  a checksum to its own messages. The official zaber-motion library sends checksums by default.
+- replies carry only the highest-priority warning flag; `warnings` lists them all (`04 FS NI WR ...`)
+- `get <setting>` and `set <setting> <value>` for the settings in `_SETTINGS`: identity
+  (`deviceid`, `system.serial`, `version`, `version.build`, `system.axiscount`, `peripheralid`),
+  `resolution` (microsteps per full step; the microstep is `step_um / resolution`), `limit.min`,
+  `limit.max`, `maxspeed`, `accel`, `comm.alert`, `comm.checksum`, `comm.packet.size.max`; read-only
+  ones answer `BADCOMMAND` to `set`, out-of-range values `BADDATA`
+- with `comm.alert 1`, an alert `!01 1 IDLE --` when an axis comes to rest
+- until homed the axis carries WR (no reference position) and `move abs` is rejected
 
 Until homed the axis carries the WR flag (no reference position) and absolute moves are
 rejected. Faults for tests, via `inject()`: drop_reply, noise, unplug, position_error
@@ -21,6 +35,21 @@ from .pty_controller import COMMON_FAULTS, Carriage, PtyController
 
 #: warning flags in the order the device reports them: faults, then warnings, then notices
 _FLAG_PRIORITY = ("FF", "FS", "FT", "FQ", "FD", "FZ", "FE", "WL", "WV", "WT", "WM", "WR", "WH", "NI", "NC", "ND")
+#: settings `get` answers, and whether `set` may write them (the rest are computed in `_get`)
+_SETTINGS = {
+    "deviceid": False, "system.serial": False, "version": False, "version.build": False,
+    "system.axiscount": False, "peripheralid": False, "comm.packet.size.max": False, "limit.min": True,
+    "limit.max": True, "maxspeed": True, "accel": True, "resolution": True, "comm.alert": True,
+    "comm.checksum": True, "pos": True, "system.access": True,
+}
+#: device-scope settings: one value, whatever the axis
+_DEVICE_SCOPE = {"deviceid", "system.serial", "version", "version.build", "system.axiscount", "comm.packet.size.max",
+                 "comm.alert", "comm.checksum", "system.access"}
+
+
+def checksum(body: str) -> str:
+    """The Zaber ASCII checksum of a message body (between the start character and the colon): two hex digits."""
+    return f"{(-sum(body.encode('ascii'))) & 0xFF:02X}"
 
 
 class ZaberSim(PtyController):
@@ -37,18 +66,32 @@ class ZaberSim(PtyController):
         speed_mm_s: float = 2000.0,
         start_mm: float = 1200.0,
         device: int = 1,
+        resolution: int = 64,
+        device_id: int = 50081,
+        serial: int = 1234567,
         seed: int = 0,
     ):
+        """microstep_um: the microstep at the default resolution 64 (as datasheets give it); with another
+        `resolution` the device's microstep is microstep_um * 64 / resolution."""
         super().__init__(seed=seed)
         self.carriage = Carriage(travel_mm, speed_mm_s, start_mm)
-        self.microstep_um = microstep_um
+        self.step_um = microstep_um * 64
+        self.resolution = resolution
         self.device = device
+        self.device_id, self.serial = device_id, serial
+        self.alerts = False
+        self.checksums = False
+        self.accel = 205
         #: device position = carriage position - origin; arbitrary until homed
         self.origin_mm = start_mm
         self.homed = False
         self.homing = False
         self.flags: set[str] = {"WR"}
         self._buffer = bytearray()
+
+    @property
+    def microstep_um(self) -> float:
+        return self.step_um / self.resolution
 
     @property
     def limit_max_steps(self) -> int:
@@ -73,7 +116,12 @@ class ZaberSim(PtyController):
             return  # devices ignore anything that is not a command
         if self.drop_command(line):
             return
-        tokens = line[1:].split()
+        body = line[1:]
+        if ":" in body:
+            body, given = body.rsplit(":", 1)
+            if given.strip().upper() != checksum(body):
+                return  # a corrupted message: dropped
+        tokens = body.split()
         device = axis = 0
         message_id = None
         if tokens and tokens[0].isdigit():
@@ -85,6 +133,9 @@ class ZaberSim(PtyController):
         if device not in (0, self.device):
             return
         reply = _Reply(self, axis, message_id)
+        if message_id is not None and not 0 <= message_id <= 99:
+            reply.send("BADMESSAGEID", rejected=True)
+            return
         if axis not in (0, 1):
             reply.send("BADAXIS", rejected=True)
             return
@@ -103,14 +154,11 @@ class ZaberSim(PtyController):
             self.carriage.stop(now_s)
             self.homing = False
             reply.send("0")
-        elif words == "get pos":
-            reply.send(str(self.position_steps(now_s)))
-        elif words == "get limit.min":
-            reply.send("0")
-        elif words == "get limit.max":
-            reply.send(str(self.limit_max_steps))
-        elif words == "get maxspeed":
-            reply.send(str(round(self.carriage.speed_mm_s * 1000.0 / self.microstep_um / 1.6384)))
+        elif tokens[0] == "get" and len(tokens) == 2:
+            value = self._get(tokens[1], reply.axis, now_s)
+            reply.send(value if value is not None else "BADCOMMAND", rejected=value is None)
+        elif tokens[0] == "set" and len(tokens) == 3:
+            self._set(tokens[1], tokens[2], reply, now_s)
         elif words in ("warnings", "warnings clear"):
             active = self._ordered_flags()
             reply.send(" ".join([f"{len(active):02d}", *active]))
@@ -118,6 +166,55 @@ class ZaberSim(PtyController):
                 self.flags &= {"WR"} if not self.homed else set()
         else:
             reply.send("BADCOMMAND", rejected=True)
+
+    def _get(self, name: str, axis: int, now_s: float) -> str | None:
+        """A setting's value as the device prints it; None if there is no such setting."""
+        if name not in _SETTINGS:
+            return None
+        return str(self._device_value(name) if name in _DEVICE_SCOPE else self._axis_value(name, now_s))
+
+    def _device_value(self, name: str) -> int | str:
+        return {"deviceid": self.device_id, "system.serial": self.serial, "version": "7.38", "version.build": 17935,
+                "system.axiscount": 1, "comm.packet.size.max": 80, "comm.alert": int(self.alerts),
+                "comm.checksum": int(self.checksums), "system.access": 1}[name]
+
+    def _axis_value(self, name: str, now_s: float) -> int:
+        if name == "pos":
+            return self.position_steps(now_s)
+        if name == "maxspeed":  # microsteps per 1.6384 s (the firmware's speed unit)
+            return round(self.carriage.speed_mm_s * 1000.0 / self.microstep_um * 1.6384)
+        return {"limit.min": 0, "limit.max": self.limit_max_steps, "accel": self.accel,
+                "resolution": self.resolution, "peripheralid": 0}[name]
+
+    def _set(self, name: str, text: str, reply: "_Reply", now_s: float) -> None:
+        if not _SETTINGS.get(name, False):
+            reply.send("BADCOMMAND", rejected=True)
+            return
+        try:
+            value = int(text)
+        except ValueError:
+            reply.send("BADDATA", rejected=True)
+            return
+        if name in ("comm.alert", "comm.checksum") and value in (0, 1):
+            setattr(self, "alerts" if name == "comm.alert" else "checksums", bool(value))
+        elif name == "resolution" and 1 <= value <= 256 and not self.carriage.moving():
+            self.resolution = value  # the reference is lost: positions change meaning
+            self.homed = False
+            self.flags.add("WR")
+        elif name == "maxspeed" and value > 0:
+            self.carriage.speed_mm_s = value / 1.6384 * self.microstep_um / 1000.0
+        elif name == "accel" and value >= 0:
+            self.accel = value
+        elif name == "system.access" and value in (1, 2):
+            pass
+        elif name == "limit.max" and 0 < value <= self.limit_max_steps:
+            self.carriage.travel_mm = value * self.microstep_um / 1000.0
+        elif name == "pos" and not self.carriage.moving():
+            self.origin_mm = self.carriage.position_mm(now_s) - value * self.microstep_um / 1000.0
+        else:
+            reply.send("BADDATA", rejected=True)
+            return
+        reply.send("0")
 
     def _move(self, mode: str, value: str, reply: "_Reply", now_s: float) -> None:
         try:
@@ -176,6 +273,12 @@ class ZaberSim(PtyController):
             self.flags.add("FS")
         self.homing = False
         self.rested(self.carriage.position_mm(now_s))
+        if self.alerts:
+            self.send_message(f"!{self.device:02d} 1 {self.status()} {self.top_flag()}")
+
+    def send_message(self, text: str) -> None:
+        """Send a reply, info or alert line, with its checksum when comm.checksum is 1."""
+        self.send_line(f"{text}:{checksum(text[1:])}" if self.checksums else text)
 
     def _ordered_flags(self) -> list[str]:
         return [f for f in _FLAG_PRIORITY if f in self.flags]
@@ -196,6 +299,6 @@ class _Reply:
 
     def send(self, data: str, *, rejected: bool = False) -> None:
         sim = self.sim
-        head = f"@{sim.device:02d} {self.axis}" + (f" {self.message_id}" if self.message_id is not None else "")
+        head = f"@{sim.device:02d} {self.axis}" + (f" {self.message_id:02d}" if self.message_id is not None else "")
         flag = "RJ" if rejected else "OK"
-        sim.send_line(f"{head} {flag} {sim.status()} {sim.top_flag()} {data}")
+        sim.send_message(f"{head} {flag} {sim.status()} {sim.top_flag()} {data}")

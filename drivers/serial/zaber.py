@@ -2,6 +2,15 @@
 
     zaber:///dev/ttyUSB0?microstep_um=0.1905&offset_m=0.3&direction=1&settle=0.2&tolerance_mm=1
 
+`microstep_um` is the datasheet's "microstep size (default resolution)", i.e. at resolution 64; the
+driver reads the device's `resolution` at open and scales it (a stage set to resolution 128 moves
+half as far per microstep). The device's identity (`deviceid`, `system.serial`, `version`) is read at
+open, recorded by `describe()`, and checked against `deviceid=` when the device string pins it.
+Every command carries a message id and a checksum (Zaber ASCII protocol manual, "Message IDs" and
+"Checksums"); a reply must echo the id, and a reply's checksum, when the device adds one
+(`comm.checksum 1`), is verified. A reply shows only its most urgent warning flag, so when it shows
+one the driver reads `warnings` to see them all.
+
 Every failure raises `StageError` with one line, "zaber <port>: <problem>; <what to do>";
 docs/stages.md lists them all with causes and fixes.
 """
@@ -20,7 +29,15 @@ from .line import CABLE, SerialLine
 from .rail import Rail, direction_option, positive_option, require_port
 from .zaber_codes import ZABER_FLAGS, ZABER_REJECTIONS
 
-_ZABER_REPLY = re.compile(r"^@(\d+) (\d+) (?:(\d+) )?(OK|RJ) (IDLE|BUSY) (--|[A-Z]{2}) (\S.*)$")
+_ZABER_REPLY = re.compile(r"^@(\d+) (\d+) (?:(\d+) )?(OK|RJ) (IDLE|BUSY) (--|[A-Z]{2}) (\S[^:]*?)(?::([0-9A-Fa-f]{2}))?$")
+#: the resolution a datasheet's microstep size refers to
+DEFAULT_RESOLUTION = 64
+
+
+def checksum(body: str) -> str:
+    """Zaber ASCII checksum of the text between the start character and the colon: the two's complement of the
+    byte sum, two hex digits (Zaber ASCII protocol manual, "Checksums")."""
+    return f"{(-sum(body.encode('ascii'))) & 0xFF:02X}"
 
 
 @dataclass(frozen=True)
@@ -49,6 +66,7 @@ class ZaberStage(Stage):
         device: int = 1,
         axis: int = 1,
         microstep_um: float = 0.1905,
+        device_id: int | None = None,
         offset_m: float = 0.3,
         direction: int = 1,
         settle_s: float = 0.2,
@@ -62,7 +80,12 @@ class ZaberStage(Stage):
         self.link = SerialLine("zaber", path, baud, timeout_s)
         self.name = self.link.name
         self.device, self.axis = device, axis
+        #: the datasheet's microstep at resolution 64; `microstep_um` is the device's, once its resolution is read
+        self.datasheet_microstep_um = microstep_um
         self.microstep_um = microstep_um
+        self.expected_device_id = device_id
+        self.identity: dict[str, str] = {}
+        self._message_id = 0
         self.offset_m, self.direction = offset_m, direction
         self.settle_s = settle_s
         self.tolerance_m = tolerance_mm / 1000.0
@@ -83,6 +106,7 @@ class ZaberStage(Stage):
             device=spec.int("device", 1),
             axis=spec.int("axis", 1),
             microstep_um=positive_option(spec, "microstep_um", 0.1905),
+            device_id=spec.int("deviceid", 0) or None,
             offset_m=spec.float("offset_m", 0.3),
             direction=direction_option(spec),
             settle_s=spec.float("settle", 0.2),
@@ -110,6 +134,7 @@ class ZaberStage(Stage):
         self._homed = False
         try:
             self.link.discard_input()
+            self._read_identity()
             low = self._steps(self._request("get limit.min"), "get limit.min")
             high = self._steps(self._request("get limit.max"), "get limit.max")
         except StageError:
@@ -119,6 +144,22 @@ class ZaberStage(Stage):
         if self.travel_mm:
             max_mm = min(max_mm, self.travel_mm)
         self.rail = Rail(self.offset_m, self.direction, min_mm, max_mm)
+
+    def _read_identity(self) -> None:
+        """Read who the device is and its resolution; set the microstep from the resolution; check deviceid=."""
+        self.identity = {name: self._request(f"get {name}", axis=0).data
+                         for name in ("deviceid", "system.serial", "version")}
+        resolution = self._steps(self._request("get resolution"), "get resolution")
+        if resolution <= 0:
+            raise self.link.garbled(str(resolution), "'get resolution'")
+        self.identity["resolution"] = str(resolution)
+        self.microstep_um = self.datasheet_microstep_um * DEFAULT_RESOLUTION / resolution
+        if self.expected_device_id is not None and self.identity["deviceid"] != str(self.expected_device_id):
+            raise self.link.error(
+                f"device {self.device} is deviceid {self.identity['deviceid']} (serial {self.identity['system.serial']}), "
+                f"not deviceid {self.expected_device_id} as the device string says",
+                "check which stage is on this port, or correct deviceid= (and microstep_um= with it)",
+            )
 
     def close(self) -> None:
         self.link.close()
@@ -161,6 +202,8 @@ class ZaberStage(Stage):
             **super().describe(),
             "driver": "zaber", "port": self.link.path, "baud": self.link.baud,
             "device": self.device, "axis": self.axis, "microstep_um": self.microstep_um,
+            "datasheet_microstep_um": self.datasheet_microstep_um,
+            **{f"device_{k.replace('.', '_')}": v for k, v in self.identity.items()},
             "offset_m": self.offset_m, "direction": self.direction, "settle_s": self.settle_s,
         }
 
@@ -171,11 +214,13 @@ class ZaberStage(Stage):
             raise self.link.error("port is not open", "open the stage before using it")
         return self.rail
 
-    def _request(self, command: str) -> ZaberReply:
-        """Send '/<device> <axis> <command>' and return its reply; raise if rejected."""
-        text = f"/{self.device} {self.axis} {command}"
-        what = repr(text)
-        self.link.write(text.encode("ascii") + b"\n", what)
+    def _request(self, command: str, *, axis: int | None = None) -> ZaberReply:
+        """Send '/<device> <axis> <id> <command>:<checksum>' and return its reply; raise if rejected."""
+        axis = self.axis if axis is None else axis
+        self._message_id = (self._message_id + 1) % 100
+        body = f"{self.device} {axis} {self._message_id:02d} {command}"
+        what = repr(f"/{self.device} {axis} {command}")
+        self.link.write(f"/{body}:{checksum(body)}\n".encode("ascii"), what)
         deadline = time.monotonic() + self.timeout_s
         while True:
             line = self.link.read_line(deadline, what)
@@ -187,8 +232,12 @@ class ZaberStage(Stage):
             if not line or line[0] in "#!":
                 continue  # info and alert messages (until the deadline: a port that streams them must not hang us)
             match = _ZABER_REPLY.match(line)
-            if not match or int(match.group(1)) != self.device or int(match.group(2)) != self.axis:
+            if not match or int(match.group(1)) != self.device or int(match.group(2)) != axis:
                 raise self.link.garbled(line, what)
+            if match.group(8) is not None and match.group(8).upper() != checksum(line[1:line.rindex(":")]):
+                raise self.link.garbled(line, what)
+            if match.group(3) is not None and int(match.group(3)) != self._message_id:
+                continue  # a late reply to an earlier command (it timed out): not this one's
             reply = ZaberReply(match.group(4) == "RJ", match.group(5) == "BUSY", match.group(6), match.group(7))
             if reply.rejected:
                 raise self._rejection(reply, what)
@@ -216,8 +265,9 @@ class ZaberStage(Stage):
         deadline = time.monotonic() + timeout_s
         while True:
             reply = self._request("get pos")
-            if check_flags:
-                self._check_flag(reply.flag, what, homing=homing)
+            if check_flags and reply.flag != "--" and not (homing and reply.flag in ("WR", "WH")):
+                for flag in self._all_flags(reply.flag):
+                    self._check_flag(flag, what, homing=homing)
             if not reply.busy:
                 return reply
             if time.monotonic() > deadline:
@@ -226,6 +276,12 @@ class ZaberStage(Stage):
                     f"check the rail for obstruction and the stage's speed setting",
                 )
             time.sleep(self.poll_s)
+
+    def _all_flags(self, top: str) -> list[str]:
+        """Every warning flag now set (a reply shows only the most urgent), most urgent first."""
+        words = self._request("warnings").data.split()
+        flags = [w for w in words[1:] if len(w) == 2 and w.isalpha()]
+        return flags if top in flags else [top, *flags]
 
     def _check_flag(self, flag: str, what: str, *, homing: bool) -> None:
         meaning = ZABER_FLAGS.get(flag, "unknown flag")
