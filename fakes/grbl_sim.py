@@ -1,18 +1,35 @@
-"""A simulated GRBL 1.1 controller driving one linear axis (X), on a pseudo-terminal.
+"""A simulated GRBL 1.1h controller driving one linear axis (X), on a pseudo-terminal.
 
-It speaks enough of GRBL 1.1 for the rig: the start-up banner, soft reset (Ctrl-X), the `?`
-status report, `$X`, `$H`, `$$`, `$I`, and G-code lines with G0/G1/G4/G20/G21/G53/G90/G91
-and X/F/P words. Machine space runs from 0 (the home switch) to `travel_mm`, as on a machine
-homed with its origin at the switch.
+What it follows of the firmware, feature by feature (gnea/grbl wiki: interface.md, commands.md,
+settings.md; source files named where the wiki is silent):
+- start-up and soft reset (Ctrl-X): the banner `Grbl 1.1h ['$' for help]`, then each stored startup
+  line run and echoed as `>G20:ok` (`$N0=...`, `$N1=...`; protocol.c), then `[MSG:'$H'|'$X' to unlock]`
+  when homing is enabled and the machine is not homed (main.c: homing on means Alarm at power-up)
+- settings (`fakes/grbl_settings.py`): `$$`, `$N=value`, stock defaults (`GrblSim.stock()`)
+- machine space as stock GRBL makes it (limits.c, limits_go_home): homing ($H, needs $22=1) seeks the
+  switch at $25 mm/min towards +X unless $23 bit 0 is set, pulls off $27 mm, and sets MPos to -$27
+  (homing to +X) or -$130+$27 (to -X), so the travel is -$130..0; with the compile option
+  HOMING_FORCE_SET_ORIGIN (`force_origin=True`, reported as `Z` in `$I`'s OPT) MPos is 0 there and the
+  travel 0..$130 (to -X) or -$130..0 (to +X). No `?` is answered during homing (the cycle blocks
+  the protocol loop). A failed homing gives ALARM:9, and the reset that follows prints the banner again.
+- motion: feed capped at $110 mm/min (G0 moves at $110), acceleration $120 mm/s^2 (trapezoidal);
+  `G53`, `G90`/`G91`, `G20`/`G21`, `G4 P<s>`; `$J=` jogging (soft limits give error:15, not an alarm);
+  a planner of 15 blocks and a 128-byte receive buffer (bytes past it are lost, as an overrun UART loses
+  them); a line over 80 characters gives error:11
+- soft limits ($20=1): a target outside the travel gives ALARM:2; hard limits ($21=1): reaching the end
+  of the rail gives ALARM:1; both are critical events: `[MSG:Reset to continue]`, then nothing is
+  answered, not even `?`, until Ctrl-X (protocol.c: the critical-event loop blocks everything). With
+  hard limits off ($21=0, stock) a move past the end of the rail stalls the motor there: MPos goes on
+  to the target and the steps are lost
+- real-time commands: `?` status, `!` feed hold (Hold:0 while decelerating, Hold:1 stopped), `~` resume,
+  0x85 jog cancel, feed and rapid overrides (0x90-0x97); a reset while moving gives ALARM:3 and loses
+  the position, a reset in Hold:1 keeps it (commands.md: feed hold before reset keeps position)
+- status reports per $10 (bit 0: MPos, else WPos; bit 1: Bf) with `FS`, `Pn:X` while a limit switch is
+  pressed, and `WCO` and `Ov` every tenth report; positions in inches when $13=1 (report.c)
+- `$G` (`[GC:...]`), `$#`, `$I`, `$N`, `$C` (check mode: no motion; leaving it resets), `$X`, `$H`
 
-Behaviour that matters to a driver: moves take time (`speed_mm_s`, fast by default so tests
-are quick) and `?` reports Run with a moving MPos until they end; with homing enabled the
-controller starts in Alarm until `$H` or `$X`; a target outside the travel gives ALARM:2
-(soft limits on) or runs into the end switch and gives ALARM:1 (soft limits off); both are
-critical: nothing but `?` and Ctrl-X is answered until a reset, after which `$X` or `$H`
-is needed. Faults for tests, via `inject()`: drop_reply, noise, unplug, position_error
-(mm=...), hard_limit (the next move trips a limit switch half-way) and homing_fail;
-`power_cycle()` restarts the controller.
+Faults for tests, via `inject()`: drop_reply, noise, unplug, position_error (mm=...), hard_limit (the
+next move trips a limit switch half-way) and homing_fail; `power_cycle()` restarts the controller.
 """
 
 from __future__ import annotations
@@ -20,15 +37,19 @@ from __future__ import annotations
 import re
 import time
 
+from .grbl_settings import STOCK, offsets_lines, parser_state, settings_lines, write_setting
 from .pty_controller import COMMON_FAULTS, Carriage, PtyController
 
 BANNER = "Grbl 1.1h ['$' for help]"
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
-_REALTIME = {ord("?"), 0x18, ord("!"), ord("~")}
+_REALTIME = {ord("?"), 0x18, ord("!"), ord("~"), 0x85, *range(0x90, 0x98)}
+RX_BUFFER = 128
+LINE_BUFFER = 80
+PLANNER_BLOCKS = 15
 
 
 class GrblSim(PtyController):
-    """A GRBL 1.1 controller with one axis on a rail from 0 to travel_mm."""
+    """A GRBL 1.1h controller with one axis (X) on a rail of `travel_mm` ($130)."""
 
     kind = "grbl"
     faults = COMMON_FAULTS + ("hard_limit", "homing_fail")
@@ -38,34 +59,83 @@ class GrblSim(PtyController):
         *,
         travel_mm: float = 3000.0,
         speed_mm_s: float = 2000.0,
-        start_mm: float = 1200.0,
+        start_mm: float | None = None,
         soft_limits: bool = True,
         homing: bool = True,
+        accel_mm_s2: float = 1e5,
+        settings: dict[int, float] | None = None,
+        force_origin: bool = False,
+        startup_lines: tuple[str, str] = ("", ""),
         seed: int = 0,
     ):
+        """Fast by default (speed_mm_s sets $110 and the homing rates, accel_mm_s2 $120); `settings` override
+        any setting; `GrblSim.stock()` is a freshly flashed controller. start_mm: where the carriage sits on
+        the rail at power-up, mm from its -X end."""
         super().__init__(seed=seed)
-        self.carriage = Carriage(travel_mm, speed_mm_s, start_mm)
-        self.soft_limits = soft_limits
-        self.homing = homing
-        #: machine position = carriage position - origin; unknown (power-up zero) until homed
-        self.origin_mm = start_mm
+        self.settings = dict(STOCK)
+        self.settings.update({20: int(soft_limits), 22: int(homing), 110: speed_mm_s * 60.0, 24: speed_mm_s * 60.0,
+                              25: speed_mm_s * 60.0, 120: accel_mm_s2, 130: travel_mm})
+        self.settings.update(settings or {})
+        self.force_origin = force_origin
+        self.startup_lines = list(startup_lines)
+        rail = self.settings[130]
+        self.carriage = Carriage(rail, self.settings[110] / 60.0, 0.4 * rail if start_mm is None else start_mm,
+                                 self.settings[120])
+        #: machine position = carriage position - origin_mm; power-up zero until homed
+        self.origin_mm = self.carriage.position_mm(time.monotonic())
         self.homed = False
-        self.state = "Alarm" if homing else "Idle"
-        #: True after ALARM:1/ALARM:2: only `?` and Ctrl-X are served until a reset
+        self.state = "Alarm" if self.settings[22] else "Idle"
+        #: True after ALARM:1/ALARM:2: nothing at all is served until a reset
         self.critical = False
         self.feed_mm_min = 0.0
+        self.motion = 0
         self.absolute = True
         self.mm_per_unit = 1.0
-        self._line = bytearray()
-        self._queue: list[tuple[str, float]] = []  # ("move", machine mm) or ("dwell", s)
+        self.feed_override = self.rapid_override = 100
+        self.reports = 0
+        self._rx = bytearray()
+        self._queue: list[tuple[str, float, float]] = []  # ("move" | "jog", machine mm, mm/min) or ("dwell", s, 0)
         self._dwell_until: float | None = None
+        self._target: tuple[float, float] | None = None  # the current move's (machine mm, mm/min), for resume
+        self._commanded_mm: float | None = None  # where MPos ends if the motor stalls at the end of the rail
+        self._muted = False
+
+    @classmethod
+    def stock(cls, **options) -> "GrblSim":
+        """A freshly flashed GRBL 1.1h: every setting at its default ($110=500, $120=10, $130=200, soft limits,
+        hard limits and homing off), on a rail of $130 mm; `settings` override single ones."""
+        overrides = dict(STOCK)
+        overrides.update(options.pop("settings", {}))
+        return cls(travel_mm=overrides[130], soft_limits=bool(overrides[20]), homing=bool(overrides[22]),
+                   settings=overrides, **options)
 
     @property
     def travel_mm(self) -> float:
         return self.carriage.travel_mm
 
+    @property
+    def homes_positive(self) -> bool:
+        return not int(self.settings[23]) & 1
+
+    @property
+    def pulloff_mm(self) -> float:
+        return self.settings[27]
+
     def machine_mm(self, now_s: float) -> float:
         return self.carriage.position_mm(now_s) - self.origin_mm
+
+    def from_home_mm(self, now_s: float) -> float:
+        """How far the carriage is from where homing leaves it (the switch, less the pull-off), mm."""
+        switch = self.travel_mm if self.homes_positive else 0.0
+        homed = switch - self.pulloff_mm if self.homes_positive else switch + self.pulloff_mm
+        return abs(self.carriage.position_mm(now_s) - homed)
+
+    def machine_limits_mm(self) -> tuple[float, float]:
+        """The soft-limit travel in machine coordinates (limits.c, system_check_travel_limits)."""
+        travel = self.settings[130]
+        if self.force_origin and not self.homes_positive:
+            return 0.0, travel
+        return -travel, 0.0
 
     # --- bytes in ---------------------------------------------------------------------------
 
@@ -73,62 +143,126 @@ class GrblSim(PtyController):
         for byte in data:
             if byte in _REALTIME:
                 self._realtime(byte, now_s)
-            elif byte in (0x0A, 0x0D):
-                line, self._line = self._line.decode("ascii", "replace"), bytearray()
-                self._execute_line(line, now_s)
-            elif byte < 0x80:
-                self._line.append(byte)
+            elif len(self._rx) < RX_BUFFER:
+                self._rx.append(byte)  # past 128 bytes an overrun UART loses them
+        self._drain(now_s)
+
+    def _drain(self, now_s: float) -> None:
+        """Execute complete lines while the planner has room (GRBL stops reading when it is full)."""
+        while not self.critical:
+            if sum(1 for q in self._queue if q[0] != "dwell") >= PLANNER_BLOCKS or self.state == "Home":
+                return
+            ends = [i for i in (self._rx.find(b"\n"), self._rx.find(b"\r")) if i >= 0]
+            if not ends:
+                return
+            end = min(ends)
+            raw, self._rx = self._rx[:end], self._rx[end + 1:]
+            self._execute_line(raw.decode("ascii", "replace"), now_s)
 
     def _realtime(self, byte: int, now_s: float) -> None:
         if byte == 0x18:
             self.commands.append("^X")
             self._soft_reset(now_s)
             return
+        if self.critical or self.state == "Home":
+            return  # the critical-event loop and the homing cycle answer nothing
         if byte == ord("?"):
-            if self.drop_command("?"):
+            if not self.drop_command("?"):
+                self.send_line(self._status(now_s))
+        elif byte == ord("!") and self.state in ("Run", "Jog"):
+            self.commands.append("!")
+            if self.state == "Jog":
+                self._jog_cancel(now_s)
                 return
-            self.send_line(self._status(now_s))
-        # feed hold (!) and cycle start (~) are accepted and ignored
+            self.carriage.stop(now_s)
+            self.state = "Hold:0"  # Hold:1 at the next tick: the deceleration is short at $120
+        elif byte == ord("~") and self.state.startswith("Hold"):
+            self.commands.append("~")
+            self.state = "Run"
+            if self._target is not None:
+                self._start_move(*self._target, now_s)
+        elif byte == 0x85 and self.state == "Jog":
+            self._jog_cancel(now_s)
+        elif 0x90 <= byte <= 0x94:
+            self.feed_override = {0x90: 100, 0x91: self.feed_override + 10, 0x92: self.feed_override - 10,
+                                  0x93: self.feed_override + 1, 0x94: self.feed_override - 1}[byte]
+            self.feed_override = min(200, max(10, self.feed_override))
+        elif 0x95 <= byte <= 0x97:
+            self.rapid_override = {0x95: 100, 0x96: 50, 0x97: 25}[byte]
 
     def _execute_line(self, raw: str, now_s: float) -> None:
         line = "".join(raw.split()).upper()
-        if self.critical:
-            return  # waiting for a reset: GRBL reads nothing else
         if self.drop_command(raw.strip()):
             return
-        if not line:
+        if len(raw) > LINE_BUFFER:
+            self.send_line("error:11")
+        elif not line:
             self.send_line("ok")
         elif line.startswith("$"):
             self._system_command(line, now_s)
         else:
-            self._gcode(line, now_s)
+            error = self._gcode(line, now_s)
+            if error is not None:
+                self.send_line(error)
 
-    # --- commands ------------------------------------------------------------------------------
+    # --- $ commands ------------------------------------------------------------------------------
 
     def _system_command(self, line: str, now_s: float) -> None:
+        if line.startswith("$J="):
+            error = self._gcode(line[3:], now_s, jog=True)
+            if error is not None:
+                self.send_line(error)
+            return
+        setting = re.fullmatch(r"\$(\d+)=(.*)", line)
+        startup = re.fullmatch(r"\$N([01])=(.*)", line)
         if line == "$X":
             if self.state == "Alarm":
                 self.state = "Idle"
                 self.send_line("[MSG:Caution: Unlocked]")
             self.send_line("ok")
         elif line == "$H":
-            if not self.homing:
-                self.send_line("error:5")
-            elif self.state not in ("Idle", "Alarm"):
-                self.send_line("error:8")
-            else:
-                self.state = "Home"
-                fail = self.take_fault("homing_fail")
-                stop_at = self.carriage.position_mm(now_s) / 2 if fail else None
-                self.carriage.start(0.0, now_s, stop_at_mm=stop_at, stop_outcome="homing_fail")
+            self._home(now_s)
         elif line == "$$":
-            for key, value in (("$20", int(self.soft_limits)), ("$21", 1), ("$22", int(self.homing)),
-                               ("$110", 3000.0), ("$130", self.travel_mm)):
-                self.send_line(f"{key}={value:.3f}" if isinstance(value, float) else f"{key}={value}")
+            for text in settings_lines(self.settings):
+                self.send_line(text)
             self.send_line("ok")
+        elif setting:
+            if self.state not in ("Idle", "Alarm"):
+                self.send_line("error:8")
+                return
+            error = write_setting(self.settings, int(setting.group(1)), setting.group(2))
+            self.carriage.speed_mm_s = self.settings[110] / 60.0
+            self.carriage.accel_mm_s2 = self.settings[120]
+            self.send_line(error or "ok")
+        elif line == "$N":
+            for i, text in enumerate(self.startup_lines):
+                self.send_line(f"$N{i}={text}")
+            self.send_line("ok")
+        elif startup:
+            self.startup_lines[int(startup.group(1))] = startup.group(2)
+            self.send_line("ok")
+        elif line == "$G":
+            self.send_line(parser_state(motion=self.motion, inches=self.mm_per_unit != 1.0,
+                                        relative=not self.absolute, feed_mm_min=self.feed_mm_min))
+            self.send_line("ok")
+        elif line == "$#":
+            for text in offsets_lines():
+                self.send_line(text)
+            self.send_line("ok")
+        elif line == "$C":
+            if self.state == "Check":
+                self.send_line("[MSG:Disabled]")
+                self.send_line("ok")
+                self._soft_reset(now_s)
+            elif self.state == "Idle":
+                self.state = "Check"
+                self.send_line("[MSG:Enabled]")
+                self.send_line("ok")
+            else:
+                self.send_line("error:8")
         elif line == "$I":
             self.send_line("[VER:1.1h.20190830:]")
-            self.send_line("[OPT:V,15,128]")
+            self.send_line(f"[OPT:V{'Z' if self.force_origin else ''},15,128]")
             self.send_line("ok")
         elif line == "$":
             self.send_line("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]")
@@ -136,64 +270,93 @@ class GrblSim(PtyController):
         else:
             self.send_line("error:3")
 
-    def _gcode(self, line: str, now_s: float) -> None:
-        if self.state == "Alarm":
-            self.send_line("error:9")
-            return
+    def _home(self, now_s: float) -> None:
+        if not self.settings[22]:
+            self.send_line("error:5")
+        elif self.state not in ("Idle", "Alarm"):
+            self.send_line("error:8")
+        else:
+            self.state = "Home"
+            switch = self.travel_mm if self.homes_positive else 0.0
+            fail = self.take_fault("homing_fail")
+            stop_at = (self.carriage.position_mm(now_s) + switch) / 2 if fail else None
+            self.carriage.start(switch, now_s, stop_at_mm=stop_at, stop_outcome="homing_fail",
+                                speed_mm_s=self.settings[25] / 60.0)
+
+    # --- G-code ------------------------------------------------------------------------------------
+
+    def _gcode(self, line: str, now_s: float, *, jog: bool = False) -> str | None:
+        """Parse and queue one line; None once its `ok` is sent (or deferred), else the error line."""
+        if self.state == "Alarm" or (jog and self.state not in ("Idle", "Jog")):
+            return "error:9" if self.state == "Alarm" else "error:8"
         words = _WORD.findall(line)
         if "".join(letter + value for letter, value in words) != line:
-            self.send_line("error:1")
-            return
+            return "error:1"
         motion, machine, x, dwell_s = None, False, None, None
-        absolute, mm_per_unit, feed = self.absolute, self.mm_per_unit, self.feed_mm_min
+        absolute, mm_per_unit, feed = self.absolute, self.mm_per_unit, None
         for letter, value in words:
             number = float(value)
             if letter == "G":
-                if number in (0, 1):
+                if number in (0, 1, 4):
                     motion = int(number)
-                elif number == 4:
-                    motion = 4
                 elif number == 53:
                     machine = True
                 elif number in (90, 91):
                     absolute = number == 90
                 elif number in (20, 21):
                     mm_per_unit = 25.4 if number == 20 else 1.0
-                else:
-                    self.send_line("error:20")
-                    return
+                elif number not in (17, 54, 94):
+                    return "error:20"
             elif letter == "X":
                 x = number
             elif letter == "F":
                 feed = number
             elif letter == "P":
                 dwell_s = number
-            elif letter in ("Y", "Z", "N"):
-                pass
-            else:
-                self.send_line("error:20")
-                return
+            elif letter not in ("Y", "Z", "N", "M", "S", "T"):
+                return "error:20"
+        if jog:
+            if x is None or feed is None:
+                return "error:16"
+            current = self._planned_end_mm(now_s)
+            target = x * mm_per_unit if (absolute or machine) else current + x * mm_per_unit
+            low, high = self.machine_limits_mm()
+            if self.settings[20] and not low <= target <= high:
+                return "error:15"
+            self._queue.append(("jog", target, feed * mm_per_unit))
+            self.send_line("ok")
+            return None
         self.absolute, self.mm_per_unit = absolute, mm_per_unit
+        if feed is not None:
+            self.feed_mm_min = feed * mm_per_unit
         if motion == 4:
-            self._queue.append(("dwell", dwell_s or 0.0))
-            return  # "ok" once the dwell is over
+            self._queue.append(("dwell", dwell_s or 0.0, 0.0))
+            return None  # "ok" once the dwell is over
+        if motion in (0, 1):
+            self.motion = motion
         if x is None:
             self.send_line("ok")
-            return
-        if motion == 1 and feed <= 0:
-            self.send_line("error:22")
-            return
-        self.feed_mm_min = feed if motion == 1 else self.feed_mm_min
-        x_mm = x * self.mm_per_unit
-        last = self._queue[-1][1] if self._queue and self._queue[-1][0] == "move" else None
-        current = last if last is not None else (
-            self.carriage.move.end_mm - self.origin_mm if self.carriage.move else self.machine_mm(now_s))
-        target = x_mm if (self.absolute or machine) else current + x_mm
-        if self.soft_limits and not 0.0 <= target <= self.travel_mm:
+            return None
+        if self.motion == 1 and self.feed_mm_min <= 0:
+            return "error:22"
+        current = self._planned_end_mm(now_s)
+        target = x * mm_per_unit if (absolute or machine) else current + x * mm_per_unit
+        low, high = self.machine_limits_mm()
+        if self.settings[20] and not low <= target <= high:
             self._critical_alarm(2, now_s)
-            return
-        self._queue.append(("move", target))
+            return None
+        if self.state != "Check":
+            self._queue.append(("move", target, self.feed_mm_min if self.motion == 1 else self.settings[110]))
         self.send_line("ok")
+        return None
+
+    def _planned_end_mm(self, now_s: float) -> float:
+        moves = [q for q in self._queue if q[0] != "dwell"]
+        if moves:
+            return moves[-1][1]
+        if self._target is not None and self.state != "Idle":
+            return self._target[0]
+        return self.machine_mm(now_s)
 
     # --- time ----------------------------------------------------------------------------------
 
@@ -202,43 +365,68 @@ class GrblSim(PtyController):
         if outcome is not None:
             self.rested(self.carriage.position_mm(now_s))
         if self.state == "Home":
-            if outcome == "homing_fail":
-                self.state = "Alarm"
-                self.send_line("ALARM:9")
-            elif outcome is not None:
-                self.origin_mm = self.carriage.position_mm(now_s)
-                self.homed = True
-                self.state = "Idle"
-                self.send_line("ok")
+            self._homing_tick(outcome, now_s)
             return
         if outcome in ("limit", "hard_limit"):
-            self._critical_alarm(1, now_s)
-            return
+            if outcome == "hard_limit" or self.settings[21]:
+                self._critical_alarm(1, now_s)
+                return
+            if self._commanded_mm is not None:  # hard limits off: the motor stalls at the end, steps lost
+                self.origin_mm = self.carriage.position_mm(now_s) - self._commanded_mm
+        if self.state == "Hold:0" and not self.carriage.moving():
+            self.state = "Hold:1"
         if self._dwell_until is not None:
             if now_s < self._dwell_until:
                 return
             self._dwell_until = None
             self.send_line("ok")
-        if self.carriage.moving() or self.state == "Alarm":
+        if self.carriage.moving() or self.state in ("Alarm", "Hold:0", "Hold:1"):
             return
         if not self._queue:
-            if self.state == "Run":
-                self.state = "Idle"
+            if self.state in ("Run", "Jog"):
+                self.state, self._target = "Idle", None
             return
-        kind, value = self._queue.pop(0)
+        kind, value, feed = self._queue.pop(0)
+        self._drain(now_s)  # a planner block is free: GRBL reads on
         if kind == "dwell":
             self._dwell_until = now_s + value
             return
-        self.state = "Run"
+        self.state = "Jog" if kind == "jog" else "Run"
+        self._start_move(value, feed, now_s)
+
+    def _start_move(self, target_machine_mm: float, feed_mm_min: float, now_s: float) -> None:
+        self._target = (target_machine_mm, feed_mm_min)
+        override = self.rapid_override if feed_mm_min == self.settings[110] else self.feed_override
+        speed = min(feed_mm_min * override / 100.0, self.settings[110]) / 60.0
         error = self.take_fault("position_error")
         trip = self.take_fault("hard_limit")
         start = self.carriage.position_mm(now_s)
-        target = value + self.origin_mm
+        target = target_machine_mm + self.origin_mm
+        self._commanded_mm = target_machine_mm
         self.carriage.start(
-            target, now_s,
+            target, now_s, speed_mm_s=speed,
             stop_at_mm=(start + target) / 2 if trip else None, stop_outcome="hard_limit",
             error_mm=float(error.get("mm", 5.0)) if error else 0.0,
         )
+
+    def _homing_tick(self, outcome: str | None, now_s: float) -> None:
+        if outcome == "homing_fail":
+            self.send_line("ALARM:9")
+            self.state = "Alarm"
+            self._soft_reset(now_s, alarm_kept=True)  # limits.c: mc_reset() after a homing alarm
+        elif outcome is not None:
+            pulloff = self.pulloff_mm if self.homes_positive else -self.pulloff_mm
+            homed_at = self.carriage.position_mm(now_s) - pulloff
+            self.carriage.place(homed_at)  # the pull-off move (short; its time is not simulated)
+            if self.force_origin:
+                machine = 0.0
+            else:
+                machine = -self.pulloff_mm if self.homes_positive else -self.settings[130] + self.pulloff_mm
+            self.origin_mm = homed_at - machine
+            self.homed = True
+            self.state = "Idle"
+            self.send_line("ok")
+            self._drain(now_s)
 
     # --- state changes ---------------------------------------------------------------------------
 
@@ -250,15 +438,13 @@ class GrblSim(PtyController):
             self.carriage.stop(now)
             self.origin_mm = self.carriage.position_mm(now)
             self.homed = False
-            self.critical = False
-            self.state = "Alarm" if self.homing else "Idle"
-            self._queue.clear()
-            self._dwell_until = None
-            self._line.clear()
-            self.write(b"\r\n")
-            self.send_line(BANNER)
-            if self.state == "Alarm":
-                self.send_line("[MSG:'$H'|'$X' to unlock]")
+            self.state = "Alarm" if self.settings[22] else "Idle"
+            self._soft_reset(now, alarm_kept=True)
+
+    def _jog_cancel(self, now_s: float) -> None:
+        self.carriage.stop(now_s)
+        self._queue = [q for q in self._queue if q[0] != "jog"]
+        self.state, self._target = "Idle", None
 
     def _critical_alarm(self, code: int, now_s: float) -> None:
         self.carriage.stop(now_s)
@@ -271,27 +457,60 @@ class GrblSim(PtyController):
         self.send_line(f"ALARM:{code}")
         self.send_line("[MSG:Reset to continue]")
 
-    def _soft_reset(self, now_s: float) -> None:
-        if self.state == "Run" and self.carriage.moving():
-            self.carriage.stop(now_s)
-            self.state = "Alarm"
-            self.homed = False
-            self.send_line("ALARM:3")
-        elif self.state == "Home":
-            self.carriage.stop(now_s)
-            self.state = "Alarm"
-            self.send_line("ALARM:6")
+    def _soft_reset(self, now_s: float, *, alarm_kept: bool = False) -> None:
+        if not alarm_kept:
+            if self.state in ("Run", "Jog", "Hold:0") and self.carriage.moving():
+                self.carriage.stop(now_s)
+                self.state = "Alarm"
+                self.homed = False
+                self.send_line("ALARM:3")
+            elif self.state == "Home":
+                self.carriage.stop(now_s)
+                self.state = "Alarm"
+                self.send_line("ALARM:6")
+            elif self.state in ("Hold:1", "Check", "Jog", "Run"):
+                self.state = "Idle"  # stopped in a feed hold: the position is kept
         self._queue.clear()
+        self._target = None
         self._dwell_until = None
-        self._line.clear()
+        self._rx.clear()
         self.critical = False
-        self.absolute, self.mm_per_unit = True, 1.0
+        self.absolute, self.mm_per_unit, self.motion = True, 1.0, 0
+        self.feed_override = self.rapid_override = 100
         self.write(b"\r\n")
         self.send_line(BANNER)
         if self.state == "Alarm":
             self.send_line("[MSG:'$H'|'$X' to unlock]")
+            return
+        for text in self.startup_lines:
+            if text:
+                self._muted = True  # GRBL prints a startup line's result as >line:ok, not as a bare ok
+                try:
+                    error = self._gcode("".join(text.split()).upper(), now_s)
+                finally:
+                    self._muted = False
+                self.send_line(f">{text}:{error or 'ok'}")
+
+    def send_line(self, text: str) -> None:
+        if not (self._muted and text == "ok"):
+            super().send_line(text)
 
     def _status(self, now_s: float) -> str:
-        x = self.machine_mm(now_s)
-        feed = self.feed_mm_min if self.state == "Run" else 0
-        return f"<{self.state}|MPos:{x:.3f},0.000,0.000|FS:{feed:.0f},0>"
+        self.reports += 1
+        inches = int(self.settings[13]) == 1
+        scale, digits = (1 / 25.4, 4) if inches else (1.0, 3)
+        x = self.machine_mm(now_s) * scale
+        pos = f"{x:.{digits}f},{0:.{digits}f},{0:.{digits}f}"
+        fields = [self.state, f"MPos:{pos}" if int(self.settings[10]) & 1 else f"WPos:{pos}"]
+        if int(self.settings[10]) & 2:
+            fields.append(f"Bf:{PLANNER_BLOCKS - len(self._queue)},{RX_BUFFER - len(self._rx)}")
+        feed = self._target[1] if self._target and self.state in ("Run", "Jog") else 0.0
+        fields.append(f"FS:{min(feed, self.settings[110]) * scale:.0f},0")
+        switch = self.travel_mm if self.homes_positive else 0.0
+        if abs(self.carriage.position_mm(now_s) - switch) < 1e-6 or not 0 < self.carriage.position_mm(now_s) < self.travel_mm:
+            fields.append("Pn:X")
+        if self.reports % 10 == 1:
+            fields.append(f"WCO:{0:.{digits}f},{0:.{digits}f},{0:.{digits}f}")
+        elif self.reports % 10 == 2:
+            fields.append(f"Ov:{self.feed_override},{self.rapid_override},100")
+        return "<" + "|".join(fields) + ">"

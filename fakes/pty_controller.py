@@ -34,22 +34,49 @@ class Move:
     outcome: str = "arrived"
     #: where the carriage really ends (end_mm plus an injected position error)
     final_mm: float | None = None
+    #: acceleration and deceleration, mm/s^2 (None: full speed at once)
+    accel_mm_s2: float | None = None
+
+    def _profile(self) -> tuple[float, float, float]:
+        """(peak speed mm/s, ramp time s, total time s) of the trapezoid (or triangle) velocity profile."""
+        d = abs(self.end_mm - self.start_mm)
+        if not self.accel_mm_s2:
+            return self.speed_mm_s, 0.0, d / self.speed_mm_s
+        a = self.accel_mm_s2
+        v = min(self.speed_mm_s, (a * d) ** 0.5)  # a triangle when the move is too short to reach full speed
+        ramp = v / a
+        return v, ramp, 2 * ramp + (d - v * ramp) / v if v > 0 else 0.0
+
+    def travelled_mm(self, now_s: float) -> float:
+        d = abs(self.end_mm - self.start_mm)
+        t = max(0.0, now_s - self.t0_s)
+        v, ramp, total = self._profile()
+        if t >= total:
+            return d
+        if not self.accel_mm_s2:
+            return min(d, t * v)
+        a = self.accel_mm_s2
+        if t < ramp:
+            return 0.5 * a * t * t
+        if t < total - ramp:
+            return 0.5 * v * ramp + v * (t - ramp)
+        left = total - t
+        return d - 0.5 * a * left * left
 
     def position_mm(self, now_s: float) -> float:
-        dist = self.end_mm - self.start_mm
-        travelled = min(abs(dist), (now_s - self.t0_s) * self.speed_mm_s)
-        return self.start_mm + np.copysign(travelled, dist)
+        return self.start_mm + np.copysign(self.travelled_mm(now_s), self.end_mm - self.start_mm)
 
     def done(self, now_s: float) -> bool:
-        return (now_s - self.t0_s) * self.speed_mm_s >= abs(self.end_mm - self.start_mm)
+        return now_s - self.t0_s >= self._profile()[2]
 
 
 class Carriage:
     """The simulated carriage on a rail from 0 to travel_mm, with limit switches at both ends."""
 
-    def __init__(self, travel_mm: float, speed_mm_s: float, start_mm: float):
+    def __init__(self, travel_mm: float, speed_mm_s: float, start_mm: float, accel_mm_s2: float | None = None):
         self.travel_mm = travel_mm
         self.speed_mm_s = speed_mm_s
+        self.accel_mm_s2 = accel_mm_s2
         self._rest_mm = start_mm
         self.move: Move | None = None
 
@@ -70,7 +97,12 @@ class Carriage:
         if stop_at_mm is not None and min(start, end) <= stop_at_mm <= max(start, end):
             end, outcome = stop_at_mm, stop_outcome
         final = end + error_mm if outcome == "arrived" else end
-        self.move = Move(start, end, now_s, speed_mm_s or self.speed_mm_s, outcome, final)
+        self.move = Move(start, end, now_s, speed_mm_s or self.speed_mm_s, outcome, final, self.accel_mm_s2)
+
+    def place(self, position_mm: float) -> None:
+        """Put the carriage at rest at position_mm (a move too short to simulate)."""
+        self._rest_mm = position_mm
+        self.move = None
 
     def stop(self, now_s: float) -> None:
         """Halt at once wherever the carriage is."""

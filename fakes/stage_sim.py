@@ -18,7 +18,8 @@ def build_simulator(kind: str, *, travel_mm: float = 3000.0, speed_mm_s: float =
     """A simulated controller ("grbl" or "zaber"), and the device-string options that fit it."""
     if kind == "grbl":
         sim: PtyController = GrblSim(travel_mm=travel_mm, speed_mm_s=speed_mm_s, soft_limits=soft_limits, homing=homing)
-        return sim, f"offset_m=0.3&travel_mm={travel_mm:g}" + ("" if homing else "&homing=0")
+        # the driver reads the travel ($130) and the feed cap ($110) from the controller
+        return sim, f"offset_m=0.3&feed={speed_mm_s * 60:g}" + ("" if homing else "&homing=0")
     sim = ZaberSim(travel_mm=travel_mm, speed_mm_s=speed_mm_s, microstep_um=microstep_um)
     return sim, f"offset_m=0.3&microstep_um={microstep_um:g}"
 

@@ -15,17 +15,21 @@ from fakes.grbl_sim import GrblSim
 from fakes.zaber_sim import ZaberSim
 
 FAST_SIM = {"speed_mm_s": 20000.0}
+#: a GRBL built with HOMING_FORCE_SET_ORIGIN homing towards -X with no pull-off: machine X is the distance from the
+#: home switch, so these tests can compare the carriage with the rail directly (stock geometry: test_grbl_stock.py)
+ORIGIN_AT_SWITCH = {"force_origin": True, "settings": {23: 1, 27: 0.0}}
 FAST_DRIVER = {"settle_s": 0.0, "timeout_s": 0.3, "poll_s": 0.01}
 
 
 def make_sim(kind: str, **options):
-    sim = GrblSim(**{**FAST_SIM, **options}) if kind == "grbl" else ZaberSim(**{**FAST_SIM, **options})
+    sim = GrblSim(**{**FAST_SIM, **ORIGIN_AT_SWITCH, **options}) if kind == "grbl" else ZaberSim(**{**FAST_SIM, **options})
     return sim.start()
 
 
 def make_stage(kind: str, port: str, **options):
-    cls = GrblStage if kind == "grbl" else ZaberStage
-    return cls(port, **{**FAST_DRIVER, **options})
+    if kind == "grbl":  # the feed the driver asks for; the controller caps it at its $110 (fast here)
+        return GrblStage(port, **{**FAST_DRIVER, "feed_mm_min": 1e7, **options})
+    return ZaberStage(port, **{**FAST_DRIVER, **options})
 
 
 def bare(lines: list[str]) -> list[str]:
@@ -128,7 +132,7 @@ def test_grbl_polls_status_until_the_move_ends():
         assert running == sorted(running) and 200.0 <= running[0] < running[-1] <= 2700.0
         assert sum(200.0 < x < 2700.0 for x in running) >= 3
         assert reports[-1].startswith("<Idle|MPos:2700.000")
-        assert any(c.startswith("G53 G1 X2700.000 F3000") for c in sim.commands)
+        assert any(c.startswith("G21 G53 G1 X2700.000 F600000") for c in sim.commands)  # the feed capped at $110
 
 
 def test_zaber_polls_until_idle():
@@ -169,7 +173,7 @@ def test_soft_limits_refuse_before_sending(homed):
 
 def test_device_strings_build_configured_drivers():
     spec = DeviceSpec.parse("grbl:///dev/ttyUSB0?baud=57600&offset_m=0.25&direction=-1&feed=1200&settle=0.5"
-                            "&tolerance_mm=2&travel_mm=2500")
+                            "&tolerance_mm=2&travel_mm=2500&rail_min_mm=0")
     stage = factory("stage", "grbl")(spec, {})
     assert isinstance(stage, GrblStage)
     assert (stage.link.baud, stage.feed_mm_min, stage.settle_s, stage.tolerance_m) == (57600, 1200.0, 0.5, 0.002)
@@ -270,7 +274,8 @@ def test_position_error_fails_the_tolerance_check(homed):
 
 
 def test_grbl_soft_limit_alarm_and_recovery():
-    with make_sim("grbl", travel_mm=2000.0) as sim, make_stage("grbl", sim.port, travel_mm=3000.0) as stage:
+    # the device string claims more rail than the controller's $130 allows
+    with make_sim("grbl", travel_mm=2000.0) as sim, make_stage("grbl", sim.port, rail_min_mm=0.0, travel_mm=3000.0) as stage:
         stage.home()
         with raises_for_port(sim, "ALARM:2", "soft limit", "$130"):
             stage.move_to(2.8)  # inside the driver's travel, beyond the controller's
@@ -283,9 +288,10 @@ def test_grbl_soft_limit_alarm_and_recovery():
 
 
 def test_grbl_hard_limit_alarm_when_soft_limits_are_off():
-    with make_sim("grbl", travel_mm=2000.0, soft_limits=False) as sim, make_stage("grbl", sim.port) as stage:
+    with make_sim("grbl", travel_mm=2000.0, soft_limits=False, settings={**ORIGIN_AT_SWITCH["settings"], 21: 1}) as sim, \
+            make_stage("grbl", sim.port, rail_min_mm=0.0, travel_mm=3000.0) as stage:
         stage.home()
-        with raises_for_port(sim, "ALARM:1", "hard limit", "during 'G53 G1 X2500.000"):
+        with raises_for_port(sim, "ALARM:1", "hard limit", "during 'G21 G53 G1 X2500.000"):
             stage.move_to(2.8)
         assert sim.carriage.position_mm(time.monotonic()) == pytest.approx(2000.0)
         stage.home()
@@ -312,10 +318,9 @@ def test_grbl_homing_failure():
 
 
 def test_grbl_homing_disabled_on_the_controller():
-    with make_sim("grbl", homing=False) as sim:
-        with make_stage("grbl", sim.port) as stage:
-            with raises_for_port(sim, "error:5", "homing is not enabled", "homing=0"):
-                stage.home()
+    with make_sim("grbl", homing=False, soft_limits=False) as sim:
+        with raises_for_port(sim, "homing is disabled on the controller ($22=0)", "homing=0"):
+            make_stage("grbl", sim.port).open()
         with make_stage("grbl", sim.port, homing=False) as stage:
             stage.home()  # $X only: positions count from where the carriage was at power-up
             assert "$X" in sim.commands
