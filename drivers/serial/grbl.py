@@ -18,6 +18,7 @@ from ..errors import StageError
 from ..registry import DeviceSpec
 from ..stage import Stage
 from .grbl_codes import GRBL_ALARMS, GRBL_ERRORS
+from .grbl_machine import REQUIRED, move_time_s, parse_settings, rail_geometry, travel_note
 from .line import CABLE, GarbledReply, SerialLine
 from .rail import Rail, direction_option, positive_option, require_port
 
@@ -192,13 +193,8 @@ class GrblStage(Stage):
 
     def _read_settings(self) -> None:
         """`$$` and `$I`: the settings the driver depends on, and the rail geometry they imply."""
-        lines = self._query("$$")
-        self.settings = {}
-        for text in lines:
-            match = re.fullmatch(r"\$(\d+)=([-\d.]+)", text)
-            if match:
-                self.settings[int(match.group(1))] = float(match.group(2))
-        missing = [n for n in (10, 13, 20, 22, 23, 27, 110, 120, 130) if n not in self.settings]
+        self.settings = parse_settings(self._query("$$"))
+        missing = [n for n in REQUIRED if n not in self.settings]
         if missing:
             raise self.link.error(
                 f"'$$' did not list {', '.join(f'${n}' for n in missing)}",
@@ -219,20 +215,9 @@ class GrblStage(Stage):
         self.feed_mm_min = min(self.requested_feed_mm_min, s[110])
         if self.rail is not None:
             return  # rail_min_mm and travel_mm given: the device string wins
-        travel = self.travel_mm or s[130]
-        if self.homing:
-            force_origin = "Z" in self.options.split(",")[0]
-            towards_plus = not int(s[23]) & 1
-            if force_origin:
-                self.home_mm = 0.0
-            else:
-                self.home_mm = -s[27] if towards_plus else -s[130] + s[27]
-            self.away = -1 if towards_plus else 1
-            low, high = (0.0, s[130]) if force_origin and not towards_plus else (-s[130], 0.0)
-            room = (self.home_mm - low) if self.away < 0 else (high - self.home_mm)
-            travel = min(travel, room)
-        else:
-            self.home_mm, self.away = 0.0, 1
+        geometry = rail_geometry(s, self.options, homing=self.homing)
+        self.home_mm, self.away = geometry.home_mm, geometry.away
+        travel = min(self.travel_mm or geometry.travel_mm, geometry.travel_mm)
         low = self.rail_min_mm or 0.0
         self.rail = Rail(self.offset_m, self.direction, low, low + travel)
 
@@ -254,10 +239,7 @@ class GrblStage(Stage):
                 self._check_message(text, what)
 
     def _move_time_s(self, distance_mm: float) -> float:
-        """How long a move of distance_mm should take at the capped feed with $120's acceleration, s."""
-        v = self.feed_mm_min / 60.0
-        a = self.settings.get(120, 0.0) or float("inf")
-        return distance_mm / v + v / a
+        return move_time_s(distance_mm, self.feed_mm_min, self.settings.get(120, 0.0))
 
     # --- protocol ---------------------------------------------------------------------------------
 
@@ -365,7 +347,7 @@ class GrblStage(Stage):
                 self._alarm = "reset"  # a homing alarm resets the controller: its banner follows
             meaning, fix = GRBL_ALARMS.get(code, ("unknown alarm", "check the controller"))
             if code == 2:
-                meaning += self._travel_note()
+                meaning += travel_note(self.settings, self.options)
             raise self.link.error(f"{text} during {during or what} ({meaning})", f"{fix}")
         if _BANNER.match(text):
             if self._alarm == "reset":
@@ -377,14 +359,6 @@ class GrblStage(Stage):
                 f"check its power supply and the USB cable",
             )
         raise self.link.garbled(text, what)
-
-    def _travel_note(self) -> str:
-        s = self.settings
-        if 130 not in s:
-            return ""
-        towards = "+X" if not int(s.get(23, 0)) & 1 else "-X"
-        return (f"; the controller allows machine X only within its soft limits ($130={s[130]:g} mm; homing towards "
-                f"{towards}{' without' if 'Z' not in self.options.split(',')[0] else ' with'} HOMING_FORCE_SET_ORIGIN)")
 
     def _wait_idle(self, what: str, expected_s: float) -> GrblStatus:
         """Poll '?' until the motion has ended; stop the carriage (feed hold, reset) before raising."""
