@@ -144,7 +144,8 @@ class GrblSim(GrblSystemCommands, PtyController):
                 self._realtime(byte, now_s)
             elif len(self._rx) < RX_BUFFER:
                 self._rx.append(byte)  # past 128 bytes an overrun UART loses them
-        self._drain(now_s)
+                if byte in (0x0A, 0x0D):
+                    self._drain(now_s)  # GRBL reads a line as soon as it is whole, while the planner has room
 
     def _drain(self, now_s: float) -> None:
         """Execute complete lines while the planner has room (GRBL stops reading when it is full)."""
