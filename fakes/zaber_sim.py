@@ -10,7 +10,8 @@ What it follows of the Zaber ASCII protocol manual (firmware 7), feature by feat
   (or none) the device itself; an optional message id 0-99 is echoed in the reply
   (`@01 1 07 OK IDLE -- 0`); an optional checksum `:CC` (two hex digits, the two's complement of the
   byte sum of everything between `/` and `:`) is checked, and a message whose checksum is wrong is
-  dropped without a reply, as a corrupted message would be; with `comm.checksum 1` the device appends
+  dropped without a reply (what a real device does with one could not be checked offline; dropping
+  is the harder case for a driver, which then sees no reply); with `comm.checksum 1` the device appends
   a checksum to its own messages. The official zaber-motion library sends checksums by default.
 - replies carry only the highest-priority warning flag; `warnings` lists them all (`04 FS NI WR ...`)
 - `get <setting>` and `set <setting> <value>` for the settings in `_SETTINGS`: identity
