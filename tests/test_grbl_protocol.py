@@ -171,8 +171,8 @@ def test_overlong_line_gets_error_11_and_the_receive_buffer_holds_128_bytes():
         port = serial.Serial(sim.port, 115200, timeout=0.5)
         port.write(b"G1 X1 F60 (" + b"x" * 90 + b")\n")
         assert port.readline().strip() == b"error:11"
-        # 20 one-second moves: one runs, 15 fill the planner, the last 4 (40 bytes) wait unread in the buffer
-        port.write(b"G91\n" + b"G1 X1 F60\n" * 20)
+        # 20 ten-second moves: one runs, 15 fill the planner, the last 4 (40 bytes) wait unread in the buffer
+        port.write(b"G91\n" + b"G1 X9 F60\n" * 20)
         time.sleep(0.5)
         assert port.read(4096).count(b"ok") == 17
         port.write(b"?")
@@ -180,3 +180,69 @@ def test_overlong_line_gets_error_11_and_the_receive_buffer_holds_128_bytes():
         assert "|Bf:0,88|" in report, report
         port.write(b"\x18")
         port.close()
+
+
+class Terminal:
+    """A raw pyserial session with the simulator: send bytes, read the lines that came back."""
+
+    def __init__(self, port: str):
+        import serial
+
+        self.port = serial.Serial(port, 115200, timeout=0.3)
+
+    def send(self, data: bytes, wait_s: float = 0.15) -> list[str]:
+        self.port.write(data)
+        time.sleep(wait_s)
+        return self.port.read(8192).decode("ascii", "replace").split()
+
+    def status(self) -> str:
+        return next(t for t in self.send(b"?") if t.startswith("<"))
+
+
+def test_simulator_real_time_commands_check_mode_jogging_and_report_fields():
+    with GrblSim(homing=True, soft_limits=True, speed_mm_s=50.0, travel_mm=300.0, settings={10: 0, 25: 6000.0}) as sim:
+        term = Terminal(sim.port)
+        assert term.status().startswith("<Alarm|WPos:")  # $10=0: work positions; homing on: Alarm at power-up
+        term.send(b"$H\n", wait_s=0.05)
+        assert term.send(b"?", wait_s=0.1) == []  # homing blocks the protocol loop: '?' goes unanswered
+        while sim.state == "Home":
+            time.sleep(0.05)
+        term.send(b"", wait_s=0.1)
+        first = term.status()
+        assert first.startswith("<Idle|WPos:-1.000,")  # stock pull-off: homing leaves MPos at -$27
+        # feed hold and resume
+        term.send(b"G53 G1 X-100 F3000\n", wait_s=0.3)
+        term.send(b"!", wait_s=0.1)
+        held = term.status()
+        assert held.startswith("<Hold:1|")
+        x_held = float(held.split("WPos:")[1].split(",")[0])
+        time.sleep(0.3)
+        assert float(term.status().split("WPos:")[1].split(",")[0]) == x_held  # stopped
+        term.send(b"~", wait_s=0.1)
+        assert term.status().startswith("<Run|")
+        while sim.state != "Idle":
+            time.sleep(0.05)
+        assert sim.machine_mm(time.monotonic()) == pytest.approx(-100.0)
+        # feed override: 0x91 x 5 = 150 % (capped at $110 = 3000 mm/min)
+        term.send(bytes([0x92] * 5), wait_s=0.05)  # 50 %
+        term.send(b"G53 G1 X-90 F3000\n", wait_s=0.2)
+        assert "|FS:" in term.status()
+        while sim.state != "Idle":
+            time.sleep(0.05)
+        assert any(f"Ov:50,100,100" in r for r in sim.replies) or sim.feed_override == 50
+        # jog with soft limits: error:15, not an alarm; jog cancel stops it
+        assert term.send(b"$J=G53 X50 F3000\n") == ["error:15"]
+        term.send(b"$J=G91 X-50 F600\n", wait_s=0.2)
+        assert term.status().startswith("<Jog|")
+        term.send(bytes([0x85]), wait_s=0.1)
+        assert term.status().startswith("<Idle|") and sim.machine_mm(time.monotonic()) > -140.0
+        # check mode: parsed, not moved; leaving it resets
+        x = sim.machine_mm(time.monotonic())
+        assert term.send(b"$C\n")[:2] == ["[MSG:Enabled]", "ok"]
+        assert term.send(b"G53 G1 X-10 F3000\n") == ["ok"]
+        assert sim.machine_mm(time.monotonic()) == x
+        assert "Grbl" in term.send(b"$C\n", wait_s=0.3)  # [MSG:Disabled], ok, then the reset banner
+        # settings writes
+        assert term.send(b"$110=1200\n") == ["ok"] and sim.settings[110] == 1200.0
+        assert term.send(b"$999=1\n") == ["error:3"] and term.send(b"$110=-1\n") == ["error:4"]
+        term.port.close()
