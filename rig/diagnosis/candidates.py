@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..models import Catalogue, Effect, EffectFileError, Model, ModelData, ModelFit, likelihood_ratio
+from ..models.progress import ProgressCounter
 
 SIGNIFICANT_DBIC = -10.0
 SIGNIFICANT_P = 1e-3
@@ -32,13 +33,19 @@ class Candidate:
         return self.dbic < SIGNIFICANT_DBIC and self.p_value < SIGNIFICANT_P
 
 
-def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catalogue | None = None) -> list[Candidate]:
+def applicable_candidates(model: Model, d: ModelData, catalogue: Catalogue | None = None) -> list[Effect]:
+    """The effects of the catalogue not yet in `model` that can be fitted to `d`."""
+    have = {x.name for x in model.effects}
+    return [e for e in (catalogue or Catalogue.default()).candidates() if e.name not in have and not e.applicable(d)]
+
+
+def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catalogue | None = None, *,
+                    counter: ProgressCounter | None = None) -> list[Candidate]:
     """Every applicable effect of the catalogue not yet in `model`, fitted with it, best (lowest BIC) first."""
     out = []
-    have = {x.name for x in model.effects}
-    for e in (catalogue or Catalogue.default()).candidates():
-        if e.name in have or e.applicable(d):
-            continue
+    for e in applicable_candidates(model, d, catalogue):
+        if counter is not None:
+            counter.step(f"fitting {model.name}+{e.name}")
         try:
             f = (model + e).fit(d, start=base.values, errors=False)  # errors only for the one chosen
         except EffectFileError:

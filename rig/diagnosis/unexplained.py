@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
 from ..models.empirical import COVARIATES, EmpiricalFrameMean, is_empirical
+from ..models.progress import ProgressCounter
 from .consistency import Check
 from .scores import Headline, headline
 
@@ -103,8 +104,9 @@ def _shapes_for(check: Check | None, head: Headline) -> tuple[str, list[str]]:
     return check.name, [FAMILY_SHAPE[check.quantity]]
 
 
-def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained:
+def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: ProgressCounter | None = None) -> Unexplained:
     """Add empirical terms to `fit`'s model, worst failing family first, until within noise (or MAX_TERMS)."""
+    counter = counter or ProgressCounter(None, 1)
     out = Unexplained(fit, head, [])
     current_fit, current_head = fit, head
     tried: set[str] = set()
@@ -125,7 +127,9 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
         if not shapes:
             break
         trials = []
+        counter.expect(len(shapes) + 1)
         for covariate in shapes:
+            counter.step(f"fitting an empirical shape over {covariate}")
             term = empirical(covariate)
             why = term.applicable(d)
             if why:
@@ -148,6 +152,7 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
         tried.add(chosen.covariate)
         term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(f"empirical({chosen.covariate})")]
         # then refit with the model's own parameters free too (earlier empirical terms held: they describe, not explain)
+        counter.step(f"refitting {chosen.fit.model.name}")
         earlier = frozenset(n for e in current_fit.model.effects if is_empirical(e) for n in chosen.fit.values
                             if n.startswith(e.name + "."))
         current_fit = with_errors(chosen.fit.model.fit(d, start=chosen.fit.values, errors=False, hold=earlier), d)
@@ -155,6 +160,7 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData) -> Unexplained
         out.steps.append(EmpiricalStep(family, chosen.covariate, term, current_fit, current_head, trials))
     if len(out.steps) > 1 and not current_head.within_noise:
         # the terms were fitted one at a time; a last refit with everything free lets each settle with the others
+        counter.step(f"refitting {current_fit.model.name} with every parameter free")
         joint = with_errors(current_fit.model.fit(d, start=current_fit.values, errors=False), d)
         if joint.loglik > current_fit.loglik:
             last = out.steps[-1]

@@ -25,7 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..models import BASES, Catalogue, Model, ModelData, ModelFit, power_law, with_errors
-from .candidates import SIGNIFICANT_DBIC, Candidate, choose, rank_candidates
+from ..models.progress import ProgressCounter, ProgressFn
+from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
 from .residuals import Residuals, residuals
 from .scores import Headline, headline
 from .unexplained import Unexplained, explain_residual
@@ -183,21 +184,28 @@ def default_model(d: ModelData) -> Model:
 
 
 def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", catalogue: Catalogue | None = None,
-             max_steps: int = MAX_STEPS, explain: bool = True, second_round: bool | None = None) -> Diagnosis:
+             max_steps: int = MAX_STEPS, explain: bool = True, second_round: bool | None = None,
+             progress: ProgressFn | None = None) -> Diagnosis:
     """Fit `model`, add missing catalogue effects one at a time (at most `max_steps`), then, with `explain`,
-    describe what remains beyond noise with empirical terms. `second_round=False` is `max_steps=1`."""
+    describe what remains beyond noise with empirical terms. `second_round=False` is `max_steps=1`.
+    `progress` is told of each fit as it begins (`rig.models.progress`)."""
     if second_round is False:
         max_steps = 1
     catalogue = catalogue or Catalogue.default()
     model = model or default_model(d)
+    # the steps known now: the model, the power law, one fit per candidate effect, the residuals
+    counter = ProgressCounter(progress, 3 + len(applicable_candidates(model, d, catalogue)))
+    counter.step(f"fitting {model.name}")
     fit = model.fit(d)
+    counter.step("fitting power_law")
     pl = fit if model.name == "power_law" else Model(power_law).fit(d)
     steps = [Step(fit, headline(fit, d))]
-    steps[0].candidates = rank_candidates(model, fit, d, catalogue)  # shown even when nothing is missing
+    steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter)  # shown even when nothing is missing
     while not steps[-1].headline.within_noise and len(steps) <= max_steps:
         current = steps[-1]
         if len(steps) > 1:
-            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue)
+            counter.expect(1 + len(applicable_candidates(current.fit.model, d, catalogue)))
+            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue, counter=counter)
         best, equivalent = choose(current.candidates)
         if best is None:
             break
@@ -208,5 +216,8 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
         steps.append(Step(best.fit, after, best, equivalent))
     unexplained = None
     if explain and not steps[-1].headline.within_noise:
-        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d)
-    return Diagnosis(source, d, steps, pl, residuals(fit, d), unexplained)
+        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter)
+    counter.step("residuals")
+    result = Diagnosis(source, d, steps, pl, residuals(fit, d), unexplained)
+    counter.finish()
+    return result
