@@ -7,7 +7,7 @@ the range noise is the same at any resolution and only the number of samples cha
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, Iterator
 
 import numpy as np
@@ -16,6 +16,7 @@ from drivers.camera import CameraInfo, CameraSettings, DepthCamera, Frame, Frame
 from drivers.errors import CameraError
 
 from .effects import Effect, parse_effects
+from .render import depth_from_disparity, depth_from_noise, ir_from_uniform
 from .physics import NATIVE_FX_PX, NATIVE_WIDTH, FrameContext, SensorPhysics, StopField, base_truth, build_field
 from .world import FakeWorld
 
@@ -33,6 +34,8 @@ class FakeCamera(DepthCamera):
     fail_at_frame: raise a CameraError when this frame number is reached (a simulated unplug).
     conceal: leave the physics and effects out of `info()` (for blind tests: the recording
         must not say what was simulated).
+    drop, duplicate: the probability that a frame is lost on the way (its number and time pass
+        without it) or handed over twice, as a busy USB bus does.
     light: "day" (room light on the wall), "night" (the projector is the only light), or "auto":
         night if the camera is first configured with the projector on (the paper's night-time
         active runs), day otherwise (its day-time passive runs).
@@ -56,6 +59,8 @@ class FakeCamera(DepthCamera):
         serial: str = "FAKE-0001",
         light: str = "auto",
         conceal: bool = False,
+        drop: float = 0.0,
+        duplicate: float = 0.0,
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -76,6 +81,13 @@ class FakeCamera(DepthCamera):
         self.fail_at_frame = fail_at_frame
         self.serial = serial
         self._rng = np.random.default_rng(seed)
+        # IR noise and injected transport faults draw from their own streams: the depth noise of a
+        # seed is the same whether or not IR frames are rendered or frames are dropped
+        self._ir_rng = np.random.default_rng(seed + 104729)
+        self._fault_rng = np.random.default_rng(seed + 1299709)
+        self.drop = drop
+        self.duplicate = duplicate
+        self._render: tuple[StopField, _RenderArrays] | None = None
         self._settings = CameraSettings()
         self._open = False
         self._frame_number = 0
@@ -96,7 +108,8 @@ class FakeCamera(DepthCamera):
     @classmethod
     def from_options(cls, world: FakeWorld, options: dict[str, str]) -> "FakeCamera":
         """Build from device-string options: width, height, depth_unit_mm, seed, fps, effects, fail_at_frame."""
-        known = {"width", "height", "depth_unit_mm", "seed", "fps", "effects", "fail_at_frame", "baseline_mm", "light"}
+        known = {"width", "height", "depth_unit_mm", "seed", "fps", "effects", "fail_at_frame", "baseline_mm", "light",
+                 "drop", "duplicate"}
         unknown = set(options) - known
         if unknown:
             raise CameraError(f"fake camera: unknown option(s) {sorted(unknown)}; it takes {sorted(known)}")
@@ -109,6 +122,9 @@ class FakeCamera(DepthCamera):
             for key in ("depth_unit_mm", "baseline_mm", "fps"):
                 if key in options and not 0 < float(options[key]) < 1e4:
                     raise CameraError(f"fake camera: {key}={options[key]} must be a positive number; e.g. fake:{key}=1")
+            for key in ("drop", "duplicate"):
+                if key in options and not 0 <= float(options[key]) < 1:
+                    raise CameraError(f"fake camera: {key}={options[key]} is a probability per frame, 0 to below 1; e.g. fake:{key}=0.01")
             return cls(
                 world,
                 width=width,
@@ -120,6 +136,8 @@ class FakeCamera(DepthCamera):
                 effects=parse_effects(options.get("effects", "")),
                 fail_at_frame=int(options["fail_at_frame"]) if "fail_at_frame" in options else None,
                 light=options.get("light", "auto"),
+                drop=float(options.get("drop", 0.0)),
+                duplicate=float(options.get("duplicate", 0.0)),
             )
         except KeyError:
             raise CameraError(f"fake camera: light={options.get('light')!r}; use light=day, night or auto") from None
@@ -219,9 +237,7 @@ class FakeCamera(DepthCamera):
     def frames(self, n: int, *, ir: bool = False) -> Iterator[Frame]:
         self._require_open()
         f = self.current_field()
-        d_true = f.d_true_px.astype(np.float32)
-        sigma_d = np.where(f.valid, np.sqrt(np.where(f.valid, f.sigma_d2_px2, 0.0)), 0.0).astype(np.float32)
-        units_per_px = np.float32(f.fb_px_m / self.depth_scale_m)  # Z/unit = (f b / unit) / d
+        r = self._render_arrays(f)
         meta = FrameMetadata(
             exposure_us=self._settings.exposure_us,
             gain=self._settings.gain,
@@ -229,40 +245,78 @@ class FakeCamera(DepthCamera):
             auto_exposure=self._settings.auto_exposure,
         )
         frame_effects = [e for e in self.effects if type(e).frame is not Effect.frame]
-        for i in range(n):
+        shape = f.valid.shape
+        i = 0
+        while i < n:
             if self.fail_at_frame is not None and self._frame_number >= self.fail_at_frame:
                 raise CameraError(f"{self.name}: device disconnected at frame {self._frame_number}; reconnect it and re-run with --resume")
-            d = self._rng.standard_normal(d_true.shape, dtype=np.float32)
-            d *= sigma_d
-            d += d_true
-            valid = f.valid.copy()
+            if self.drop and self._fault_rng.random() < self.drop:  # lost on the way: its number and time pass
+                self._frame_number += 1
+                self.world.time_s += 1.0 / self.fps
+                continue
+            noise = self._rng.standard_normal(shape, dtype=np.float32)
+            depth = np.empty(shape, np.uint16)
             if frame_effects:
+                d = noise
+                d *= r.sigma_d_px
+                d += r.d_true_px
+                valid = f.valid.copy()
                 ctx = FrameContext(f, self._rng, self.world.time_s - self._opened_at_s, i)
                 for e in frame_effects:
                     e.frame(ctx, d, valid)
-            valid &= d > 0
-            with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-                z_units = np.rint(units_per_px / d)
-            valid &= (z_units > 0) & (z_units < 65535)
-            depth = np.where(valid, z_units, 0).astype(np.uint16)
+                depth_from_disparity(d, valid, r.units_per_px, depth)
+            else:
+                depth_from_noise(noise, r.sigma_d_px, r.d_true_px, f.valid, r.units_per_px, depth)
             frame = Frame(
                 depth=depth,
                 frame_number=self._frame_number,
                 timestamp_ms=self.world.time_s * 1000.0,
                 metadata=meta,
-                ir=self._render_ir(f) if ir else None,
+                ir=self._render_ir(r) if ir else None,
             )
             self._frame_number += 1
             self.world.time_s += 1.0 / self.fps
             yield frame
+            i += 1
+            if i < n and self.duplicate and self._fault_rng.random() < self.duplicate:  # handed over twice
+                yield frame
+                i += 1
 
-    def _render_ir(self, f: StopField) -> np.ndarray:
+    def _render_arrays(self, f: StopField) -> "_RenderArrays":
+        """What every frame of the stop uses, computed once per stop."""
+        if self._render is None or self._render[0] is not f:
+            with np.errstate(invalid="ignore"):
+                sigma_d = np.where(f.valid, np.sqrt(np.where(f.valid, f.sigma_d2_px2, 0.0)), 0.0).astype(np.float32)
+            light_e = ((f.signal_e * self._dots + f.ambient_e) / f.binning).astype(np.float32)
+            self._render = (f, _RenderArrays(
+                d_true_px=f.d_true_px.astype(np.float32),
+                sigma_d_px=sigma_d,
+                units_per_px=np.float32(f.fb_px_m / self.depth_scale_m),  # Z/unit = (f b / unit) / d
+                ir_light_e=light_e,
+                ir_noise_e=np.sqrt(light_e),
+            ))
+        return self._render[1]
+
+    def _render_ir(self, r: "_RenderArrays") -> np.ndarray:
         """Left IR image in DN (10-bit in uint16): dots (projector on) or texture, plus ambient light, with shot noise."""
-        e = (f.signal_e * self._dots + f.ambient_e) / f.binning
-        noisy = e + np.sqrt(e) * self._rng.standard_normal(e.shape, dtype=np.float32)
-        dn = noisy * IR_DN_PER_E * (self._settings.gain / 16.0)
-        return np.clip(np.rint(dn), 0, IR_MAX_DN).astype(np.uint16)
+        out = np.empty(r.ir_light_e.shape, np.uint16)
+        uniform = self._ir_rng.random(out.shape, dtype=np.float32)
+        ir_from_uniform(uniform, r.ir_light_e, r.ir_noise_e, np.float32(IR_DN_PER_E * self._settings.gain / 16.0),
+                        IR_MAX_DN, out)
+        return out
 
     def _require_open(self) -> None:
         if not self._open:
             raise CameraError(f"{self.name}: not open; use it as a context manager ('with camera:') or call open()")
+
+
+@dataclass(frozen=True)
+class _RenderArrays:
+    """Per-stop arrays of a frame's rendering: the true disparity and its noise (px), depth units per
+    (1 / px of disparity), the IR light and its shot noise (photo-electrons per native pixel)."""
+
+    d_true_px: np.ndarray
+    sigma_d_px: np.ndarray
+    units_per_px: np.float32
+    ir_light_e: np.ndarray
+    ir_noise_e: np.ndarray

@@ -236,7 +236,7 @@ class Recording:
 
     def notes(self) -> list[str]:
         """What a reader of a fit must know about the recording itself: still being written, interrupted
-        (which planned stops are missing), entries skipped as unreadable, a single stop."""
+        (which planned stops are missing), frames dropped or duplicated, entries skipped as unreadable, a single stop."""
         labels = self.stop_labels()
         out = []
         if self.in_progress:
@@ -253,6 +253,15 @@ class Recording:
                            f"{', ...' if len(missing) > 5 else ''}); rig run ... --resume records the rest")
         elif "ended_utc" not in self.attrs and not self.in_progress and labels:
             out.append("the run did not finish (no ended_utc); rig run ... --resume records the rest")
+        lost = []
+        for label in labels:
+            a = self._group(label).attrs
+            dropped, repeated = int(a.get("frames_dropped", 0)), int(a.get("frames_duplicated", 0))
+            if dropped or repeated:
+                lost.append(f"{label} {dropped} dropped, {repeated} duplicated")
+        if lost:
+            out.append("frames lost or repeated on the way (duplicates left out): " + "; ".join(lost[:5])
+                       + ("; ..." if len(lost) > 5 else ""))
         out += [f"skipped {s}" for s in self.skipped]
         if len(labels) == 1 and self.protocol != "tilted":
             out.append("one stop only: the range dependence rests on that stop's spread of ranges")

@@ -24,6 +24,7 @@ from drivers.stage import Stage
 
 from .plan import Capture, Configure, Home, Move, Plan, Settle
 from .disk_space import free_bytes, is_disk_full, megabytes, stop_bytes
+from .frame_continuity import FrameContinuity
 from .recording import CameraCalibration, FrameSeries, RecordingError
 from .recording_writer import RecordingWriter
 from .stop_journal import journal_dir
@@ -220,13 +221,16 @@ class Runner:
                               "check that the camera supports them (and that nothing else controls it)")
         return got
 
-    def _frames_checked(self, n: int, requested: CameraSettings, *, ir: bool):
-        """Yield n frames whose metadata match the request; skip stale ones, refuse the rest."""
+    def _frames_checked(self, n: int, requested: CameraSettings, *, ir: bool, continuity: FrameContinuity | None = None):
+        """Yield n frames whose metadata match the request; skip stale ones and duplicates, refuse the rest."""
         accepted = refused = stale = 0
         settled = False
         limit_refused = max(1, int(MAX_REFUSED_FRACTION * n))
+        continuity = continuity or FrameContinuity()
         while accepted < n:
             for frame in self.camera.frames(n - accepted, ir=ir):
+                if not continuity.check(frame.frame_number, frame.timestamp_ms):
+                    continue  # the same frame again: no new sample
                 bad = settings_mismatch(requested, frame.metadata)
                 if bad and not settled and stale < MAX_STALE_FRAMES:
                     stale += 1
@@ -277,7 +281,9 @@ class Runner:
             ("inverse_range_offset_per_m", np.float64), ("valid_fraction", np.float32), ("exposure_us", np.float32), ("gain", np.float32), ("projector_on", np.bool_))}
         self.refused = 0
         scale = info.depth_scale_m
-        for j, frame in enumerate(self._frames_checked(step.n_frames, requested, ir=step.ir)):
+        continuity = FrameContinuity()
+        size = shape[0] * shape[1]
+        for j, frame in enumerate(self._frames_checked(step.n_frames, requested, ir=step.ir, continuity=continuity)):
             self.control.wait_if_paused()
             if self.control.abort.is_set():
                 raise _Aborted()
@@ -292,7 +298,7 @@ class Runner:
             series["frame_number"][j] = frame.frame_number
             series["timestamp_ms"][j] = frame.timestamp_ms
             series["center_mean_m"][j] = nz.mean() * scale if nz.size else np.nan
-            series["valid_fraction"][j] = np.count_nonzero(depth) / depth.size
+            series["valid_fraction"][j] = acc.last_valid / size
             series["exposure_us"][j] = frame.metadata.exposure_us
             series["gain"][j] = frame.metadata.gain
             series["projector_on"][j] = frame.metadata.projector_on
@@ -307,14 +313,16 @@ class Runner:
         fill = float(np.mean(stats.count)) / step.n_frames
         writer.end_stop(
             g, stats=stats, series=FrameSeries(**series), ir_mean=ir_acc.result(), ambient_ir_mean=ambient,
-            extra_attrs={"frames_refused": refused, "measured_position_end_m": measured_end},
+            extra_attrs={"frames_refused": refused, "frames_dropped": continuity.dropped,
+                         "frames_duplicated": continuity.duplicated, "measured_position_end_m": measured_end},
         )
         c = stats.count[cy, cx] > 1
         sigma_c = float(np.sqrt(np.mean(stats.variance_m2[cy, cx][c]))) if c.any() else float("nan")
         self.progress(ProgressEvent("stop_done", step.stop, index, n_stops, n_frames=step.n_frames,
                                     summary={"fill_rate": fill, "center_sigma_m": sigma_c,
                                              "center_mean_m": float(np.nanmean(stats.mean_m[cy, cx])),
-                                             "position_m": measured_m}))
+                                             "position_m": measured_m, "frames_dropped": continuity.dropped,
+                                             "frames_duplicated": continuity.duplicated}))
 
     def _ambient(self, requested: CameraSettings, n: int) -> np.ndarray | None:
         """Mean IR image with the projector off: the ambient light level at this stop."""

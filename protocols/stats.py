@@ -2,7 +2,8 @@
 
 Each frame is folded in as it arrives; a stop's frames are never held in memory together.
 Depth arrives as integer depth units. Each pixel's samples are shifted by an integer
-reference (its first valid sample), and power sums of the shifted values are kept:
+reference (its first valid sample), and power sums of the shifted values are kept, in one
+compiled pass per frame (numba; no per-frame temporaries):
 S1 and S2 in int64, so count, mean and the sum of squared deviations are exact; S3 and S4 in
 float64 (exact while the shifted values stay below 2^13 units, otherwise rounded to 1e-16 of
 the sum). Central moments follow from the shifted sums at the end.
@@ -13,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass
@@ -43,18 +45,23 @@ class PixelStats:
 
 
 class PixelMomentAccumulator:
-    """Fold uint16 depth frames (0 = no data) into exact per-pixel moments."""
+    """Fold uint16 depth frames (0 = no data) into exact per-pixel moments.
+
+    One compiled pass per frame (`_fold`, numba): no temporaries, no fancy indexing. A pixel's
+    shift is its first valid sample; 0 marks "none yet", since a valid sample is never 0.
+    """
 
     def __init__(self, shape: tuple[int, int], depth_scale_m: float):
-        self.shape = shape
+        self.shape = tuple(shape)
         self.depth_scale_m = depth_scale_m
-        self.count = np.zeros(shape, np.int64)
-        self.shift = np.zeros(shape, np.int64)
-        self._has_shift = np.zeros(shape, bool)
+        self.count = np.zeros(shape, np.uint32)
+        self.shift = np.zeros(shape, np.uint16)
         self.s1 = np.zeros(shape, np.int64)
         self.s2 = np.zeros(shape, np.int64)
         self.s3 = np.zeros(shape, np.float64)
         self.s4 = np.zeros(shape, np.float64)
+        #: valid pixels in the last frame folded in
+        self.last_valid = 0
 
     def add(self, depth: np.ndarray) -> float:
         """Fold in one frame of depth units (zeros are missing data).
@@ -65,48 +72,68 @@ class PixelMomentAccumulator:
         """
         if depth.shape != self.shape:
             raise ValueError(f"frame shape {depth.shape} differs from the stop's {self.shape}")
-        valid = depth != 0
-        new = valid & ~self._has_shift
-        if new.any():
-            self.shift[new] = depth[new]
-            self._has_shift |= new
-        x = np.where(valid, depth.astype(np.int64) - self.shift, 0)
-        self.count += valid
-        self.s1 += x
-        x2 = x * x
-        self.s2 += x2
-        xf = x.astype(np.float64)
-        x3 = xf * x2
-        self.s3 += x3
-        self.s4 += x3 * xf
-        n_valid = np.count_nonzero(valid)
+        if depth.dtype != np.uint16:
+            depth = depth.astype(np.uint16)
+        n_valid, inv_sum = _fold(depth, self.shift, self.count, self.s1, self.s2, self.s3, self.s4)
+        self.last_valid = int(n_valid)
         if n_valid == 0:
             return float("nan")
-        # 1/z - 1/z_ref = -(z - z_ref) / (z z_ref), in depth units then scaled to 1/m
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = -xf[valid] / (depth[valid].astype(np.float64) * self.shift[valid])
-        return float(inv.mean()) / self.depth_scale_m
+        return inv_sum / n_valid / self.depth_scale_m
 
     def result(self) -> PixelStats:
         n = self.count.astype(np.float64)
+        count = self.count.astype(np.int64)
         scale = self.depth_scale_m
         with np.errstate(invalid="ignore", divide="ignore"):
-            inv_n = np.where(self.count > 0, 1.0 / n, 0.0)
+            inv_n = np.where(count > 0, 1.0 / n, 0.0)
             # exact in integers: n*M2 = n*S2 - S1^2 (in units^2)
-            n_m2 = self.count * self.s2 - self.s1 * self.s1
+            n_m2 = count * self.s2 - self.s1 * self.s1
             m2 = n_m2.astype(np.float64) * inv_n
             a = self.s1.astype(np.float64) * inv_n  # shifted mean, in units
             s2f = self.s2.astype(np.float64)
             m3 = self.s3 - 3 * a * s2f + 2 * n * a**3
             m4 = self.s4 - 4 * a * self.s3 + 6 * a * a * s2f - 3 * n * a**4
-        mean_units = np.where(self.count > 0, self.shift + a, np.nan)
+        mean_units = np.where(count > 0, self.shift + a, np.nan)
         return PixelStats(
-            count=self.count.astype(np.uint32),
+            count=self.count.copy(),
             mean_m=mean_units * scale,
             m2_m2=m2 * scale**2,
             m3_m3=m3 * scale**3,
             m4_m4=m4 * scale**4,
         )
+
+
+@njit(cache=True, nogil=True)
+def _fold(depth, shift, count, s1, s2, s3, s4):  # pragma: no cover - compiled
+    """One frame into the shifted power sums S1..S4 of every valid pixel, in one pass.
+
+    Returns (valid pixels, sum over them of 1/z - 1/z_ref in 1/depth-unit). Each sum is updated in
+    frame order exactly as numpy would: S1, S2 in int64 (exact), S3 = x^3, S4 = x^4 in float64."""
+    n_valid = 0
+    inv_sum = 0.0
+    h, w = depth.shape
+    for r in range(h):
+        for c in range(w):
+            d = depth[r, c]
+            if d == 0:
+                continue
+            ref = shift[r, c]
+            if ref == 0:
+                shift[r, c] = d
+                ref = d
+            x = np.int64(d) - np.int64(ref)
+            count[r, c] += 1
+            s1[r, c] += x
+            x2 = x * x
+            s2[r, c] += x2
+            xf = np.float64(x)
+            x3 = xf * np.float64(x2)
+            s3[r, c] += x3
+            s4[r, c] += x3 * xf
+            n_valid += 1
+            # 1/z - 1/z_ref = -(z - z_ref) / (z z_ref), in depth units
+            inv_sum -= xf / (np.float64(d) * np.float64(ref))
+    return n_valid, inv_sum
 
 
 class MeanImageAccumulator:

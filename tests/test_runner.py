@@ -181,3 +181,73 @@ def test_tilted_wall_spans_half_to_two_metres(tmp_path):
     assert np.nanmax(z) == pytest.approx(2.0, abs=0.1)
     assert np.all(np.diff(np.nanmean(z, axis=0)) < 0)  # positive tilt: the right side is nearer
     assert stop.n_frames == 20
+
+
+# -- dropped and duplicated frames ---------------------------------------------------------------
+
+class _Transport(FakeCamera):
+    """The fake camera behind a transport that loses, repeats or delays chosen frames, by frame number
+    (exact instants, not random ones)."""
+
+    def __init__(self, *a, lose=(), repeat=(), late_ms=None, **kw):
+        super().__init__(*a, **kw)
+        self.lose, self.repeat, self.late_ms = set(lose), set(repeat), dict(late_ms or {})
+        self.delay_ms = 0.0
+
+    def frames(self, n, *, ir=False):
+        given, source = 0, super().frames(10 * n, ir=ir)
+        while given < n:  # a frame is only made when it is wanted: no number is lost between calls
+            f = next(source)
+            if f.frame_number in self.lose:
+                continue
+            self.delay_ms += self.late_ms.get(f.frame_number, 0.0)
+            if self.late_ms:  # a sensor stall: the numbers run on, the clock jumps
+                f = type(f)(f.depth, f.frame_number, f.timestamp_ms + self.delay_ms, f.metadata, f.ir)
+            for _ in range(2 if f.frame_number in self.repeat and given + 1 < n else 1):
+                yield f
+                given += 1
+
+
+def _transport_run(tmp_path, **kw):
+    world = FakeWorld.perpendicular(1.0)
+    cam = _Transport(world, width=16, height=9, depth_scale_m=1e-4, **kw)
+    Runner(cam, FakeStage(world), sleep=lambda s: None).run(perpendicular(stops_m=[1.0, 2.0], frames_per_stop=40), tmp_path / "t.h5")
+    with Recording(tmp_path / "t.h5") as rec:
+        return list(rec.stops())
+
+
+def test_dropped_and_duplicated_frames_are_counted_per_stop_and_duplicates_left_out(tmp_path):
+    # the first stop's frames are numbered 0..; lose 5, 9, 10, 11 (4 drops), repeat 20 and 30 (2 duplicates)
+    first, second = _transport_run(tmp_path, lose={5, 9, 10, 11}, repeat={20, 30})
+    assert first.attrs["frames_dropped"] == 4 and first.attrs["frames_duplicated"] == 2
+    assert second.attrs["frames_dropped"] == 0 and second.attrs["frames_duplicated"] == 0
+    # every stop has its 40 distinct frames: no frame folded in twice
+    assert first.stats.count.max() == 40 and len(set(first.series.frame_number)) == 40
+    assert not {5, 9, 10, 11} & set(first.series.frame_number.tolist())
+
+
+def test_a_stall_with_consecutive_numbers_is_counted_from_the_timestamps(tmp_path):
+    # frames 15 and 25 come 3 and 2 frame periods late (at 30 fps): 2 + 1 frames' time went by without frames
+    period = 1000 / 30
+    first, _ = _transport_run(tmp_path, late_ms={15: 2 * period, 25: 1 * period})
+    assert first.attrs["frames_dropped"] == 3 and first.attrs["frames_duplicated"] == 0
+
+
+def test_the_fake_camera_drops_and_repeats_frames_on_request(tmp_path):
+    devices = open_devices("fake:width=16,height=9,drop=0.1,duplicate=0.05,seed=3", "fake:")
+    Runner(devices.camera, devices.stage, sleep=devices.sleep).run(perpendicular(stops_m=[1.0, 1.5], frames_per_stop=60),
+                                                                   tmp_path / "d.h5")
+    with Recording(tmp_path / "d.h5") as rec:
+        stops = list(rec.stops())
+    dropped = sum(s.attrs["frames_dropped"] for s in stops)
+    repeated = sum(s.attrs["frames_duplicated"] for s in stops)
+    # 120 frames kept: about 12 lost (binomial, sd 3.5) and 6 repeated (sd 2.4)
+    assert 2 <= dropped <= 25 and 1 <= repeated <= 15
+    assert all(s.stats.count.max() == 60 for s in stops)
+
+
+def test_a_fit_notes_the_frames_lost_on_the_way(tmp_path):
+    _transport_run(tmp_path, lose={3}, repeat={7})
+    with Recording(tmp_path / "t.h5") as rec:
+        notes = rec.notes()
+    assert any("1.000m 1 dropped, 1 duplicated" in n for n in notes), notes
