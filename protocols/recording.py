@@ -284,16 +284,17 @@ class Recording:
         for label in self.stop_labels():
             yield self.stop(label)
 
-    def stop(self, label: str) -> StopData:
+    def stop(self, label: str, *, third_moment: bool = True) -> StopData:
+        """One stop, read and checked; `third_moment=False` leaves m3_m3 unread (NaN), which no fit uses."""
         try:
-            return self._read_stop(label)
+            return self._read_stop(label, third_moment)
         except RecordingError:
             raise
         except H5_ERRORS as e:
             raise RecordingError(f"{self.path}: stop {label!r} cannot be read ({type(e).__name__}: {e}); "
                                  "the file is damaged: copy it aside and re-record that stop with --resume") from None
 
-    def _read_stop(self, label: str) -> StopData:
+    def _read_stop(self, label: str, third_moment: bool = True) -> StopData:
         g = self._group(label)
         missing = [k for k in self.REQUIRED_STOP if k not in g]
         if missing:
@@ -304,7 +305,8 @@ class Recording:
         def opt(name: str) -> np.ndarray:
             return g[name][()] if name in g else np.full(shape, np.nan)
 
-        stats = PixelStats(count=count, mean_m=g["mean_m"][()], m2_m2=g["m2_m2"][()], m3_m3=opt("m3_m3"), m4_m4=opt("m4_m4"))
+        m3 = opt("m3_m3") if third_moment else np.full(shape, np.nan)
+        stats = PixelStats(count=count, mean_m=g["mean_m"][()], m2_m2=g["m2_m2"][()], m3_m3=m3, m4_m4=opt("m4_m4"))
         series = None
         if "frames" in g:
             fr = g["frames"]

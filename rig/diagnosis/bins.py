@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models import ModelData, Prediction
-from ..models.data import RANGE_BIN_M, pooled_kurtosis, range_bin_index
+from ..models.data import RANGE_BIN_M, range_bin_index
+from ..models.shape_statistics import pooled_kurtosis
 
 RADIUS_EDGES = (0.0, 0.3, 0.6, np.inf)
 MIN_PIXELS_PER_BIN = 20

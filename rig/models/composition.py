@@ -19,6 +19,7 @@ import numpy as np
 
 from .data import ModelData
 from .file_physics import range_transform
+from .likelihood import model_loglik
 from .optimise import fit_model
 from .parameters import Param
 from .prediction import EffectStage, Prediction
@@ -100,8 +101,8 @@ class Model:
         return pred
 
     def loglik(self, values: dict[str, float], d: ModelData) -> float:
-        pred = self.predict(values, d)
-        return d.loglik(pred.var_m2, pred.k4_m4, pred.fill)
+        """The composite log-likelihood (`rig.models.likelihood`), evaluated stop by stop."""
+        return model_loglik(self, values, d)
 
     def check(self, d: ModelData) -> None:
         for e in self.effects:

@@ -2,15 +2,83 @@
 
 These are what the model effects need besides range: incidence angle on the wall, the
 ambient-to-pattern brightness ratio, and the drift of the mean depth during the stop.
+
+A `StopSource` keeps, per stop, the little that covariates are computed from (the smoothed IR
+and ambient-ratio images, the wall plane's normal, the drift, the projector state), so a
+covariate of any set of pixel rows is a gather or a formula, computed when it is first needed.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from drivers.image_regions import center_box
 from protocols.recording import CameraCalibration, StopData
+
+
+@dataclass(eq=False)
+class StopSource:
+    """What one stop's covariates are computed from (see the module docstring).
+
+    ir_dn: the IR image smoothed over the matching window (DN, float32; None without IR); ambient:
+    ambient / pattern light per pixel (float32; None without projector-off frames); normal: the
+    unit normal (nx, ny, nz) of the plane fitted to the stop's mean depth, in camera axes;
+    drift_inverse: the common wander's variance in (1/m)^2 (None: not recorded, see drift_m2);
+    drift_m2, drift_center_m: the central region's wander (m^2) and range (m), for old recordings;
+    n_frames; projector_on.
+    """
+
+    ir_dn: np.ndarray | None
+    ambient: np.ndarray | None
+    normal: np.ndarray
+    drift_inverse: float | None
+    drift_m2: float
+    drift_center_m: float
+    n_frames: int
+    projector_on: bool
+
+    @classmethod
+    def of(cls, stop: StopData, keep: np.ndarray, cal: CameraCalibration, window_px: int) -> "StopSource":
+        ir = smoothed(stop.ir_mean, window_px).astype(np.float32) if stop.ir_mean is not None else None
+        amb = ambient_ratio(stop.ir_mean, stop.ambient_ir_mean, window_px)
+        d_var, z_c = drift_variance_m2(stop)
+        return cls(ir, amb.astype(np.float32) if amb is not None else None, plane_normal(stop.stats.mean_m, keep, cal),
+                   drift_inverse_variance(stop), d_var, z_c, max(stop.n_frames, 1), stop.projector_on)
+
+    def drift_var_m2(self, z_m: np.ndarray) -> np.ndarray:
+        """The drift variance at range z_m (m^2): D Z^4 from the whole-frame series (d(1/z) = -dz / z^2), or,
+        for recordings without it, the central region's wander scaled to the pixel's range."""
+        if self.drift_inverse is not None:
+            return self.drift_inverse * z_m**4
+        if np.isfinite(self.drift_center_m):
+            return self.drift_m2 * (z_m / self.drift_center_m) ** 4
+        return np.zeros_like(z_m)
+
+
+def plane_normal(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibration) -> np.ndarray:
+    """Unit normal of the plane fitted to the stop's mean depth (see `incidence_cosine`); (0, 0, 1) with fewer
+    than three valid pixels. The least-squares fit of 1/Z = p xn + q yn + r, by its normal equations."""
+    v, u = np.nonzero(valid)
+    if len(u) < 3:
+        return np.array([0.0, 0.0, 1.0])
+    xn, yn = (u - cal.cx) / cal.fx, (v - cal.cy) / cal.fy
+    inv = 1.0 / mean_m[v, u]
+    cols = (xn, yn, np.ones_like(xn))
+    ata = np.array([[np.dot(a, b) for b in cols] for a in cols])
+    atb = np.array([np.dot(a, inv) for a in cols])
+    try:
+        coef = np.linalg.solve(ata, atb)
+    except np.linalg.LinAlgError:
+        coef, *_ = np.linalg.lstsq(np.column_stack(cols), inv, rcond=None)
+    return coef / np.linalg.norm(coef)  # plane: p X + q Y + r Z = 1
+
+
+def incidence_from_normal(normal: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
+    """cos of the angle between the ray (xn, yn, 1) and the plane's normal."""
+    return np.abs(normal[0] * xn + normal[1] * yn + normal[2]) / np.sqrt(xn * xn + yn * yn + 1.0)
 
 
 def smoothed(image: np.ndarray, window_px: int) -> np.ndarray:
@@ -39,16 +107,10 @@ def incidence_cosine(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibrati
     (a Z = a x + b y + c form: Z = c / (1 - a xn - b yn) is linear in 1/Z: 1/Z = (1 - a xn - b yn) / c).
     """
     h, w = mean_m.shape
-    v, u = np.mgrid[0:h, 0:w]
-    xn, yn = (u - cal.cx) / cal.fx, (v - cal.cy) / cal.fy
     if valid.sum() < 3:
         return np.ones_like(mean_m)
-    A = np.column_stack([xn[valid], yn[valid], np.ones(valid.sum())])
-    coef, *_ = np.linalg.lstsq(A, 1.0 / mean_m[valid], rcond=None)  # 1/Z = p xn + q yn + r
-    normal = np.array([coef[0], coef[1], coef[2]])  # plane: p X + q Y + r Z = 1
-    normal /= np.linalg.norm(normal)
-    ray_norm = np.sqrt(xn**2 + yn**2 + 1.0)
-    return np.abs(normal[0] * xn + normal[1] * yn + normal[2]) / ray_norm
+    v, u = np.mgrid[0:h, 0:w]
+    return incidence_from_normal(plane_normal(mean_m, valid, cal), (u - cal.cx) / cal.fx, (v - cal.cy) / cal.fy)
 
 
 def drift_inverse_variance(stop: StopData) -> float | None:
@@ -93,3 +155,46 @@ def drift_variance_m2(stop: StopData) -> tuple[float, float]:
     v_series = float(np.var(series.center_mean_m, ddof=1))
     d = (v_series - float(var_c[ok].mean()) / n) / (1.0 - 1.0 / n)
     return max(d, 0.0), float(np.nanmean(series.center_mean_m))
+
+
+def covariate_rows(name: str, d) -> np.ndarray:
+    """One covariate (a `ModelData.LAZY` name) for the rows of `d`, from its stop sources and calibration."""
+    cal, sources = d.calibration, d.sources
+    if name in ("x_norm", "y_norm", "rho2"):
+        x = (d.u_px.astype(np.float64) - cal.cx) / cal.fx
+        y = (d.v_px.astype(np.float64) - cal.cy) / cal.fy
+        return {"x_norm": x, "y_norm": y, "rho2": x * x + y * y}[name]
+    if name == "cos_inc":
+        out = np.empty(len(d))
+        for s, rows in _rows_by_stop(d):
+            out[rows] = incidence_from_normal(sources[s].normal, d.x_norm[rows], d.y_norm[rows])
+        return out
+    if name in ("ir", "ambient_ratio"):
+        out = np.full(len(d), np.nan)
+        for s, rows in _rows_by_stop(d):
+            image = sources[s].ir_dn if name == "ir" else sources[s].ambient
+            if image is not None:
+                out[rows] = image[d.v_px[rows].astype(np.intp), d.u_px[rows].astype(np.intp)]
+        return out
+    per_stop = {"fill": lambda src, rows: d.n[rows] / src.n_frames,
+                "drift_var_m2": lambda src, rows: src.drift_var_m2(d.z_m[rows]),
+                "projector_on": lambda src, rows: np.full(_size(rows, len(d)), src.projector_on)}
+    if name not in per_stop:
+        raise KeyError(f"no covariate named {name!r}")
+    parts = [(rows, per_stop[name](sources[s], rows)) for s, rows in _rows_by_stop(d)]
+    out = np.empty(len(d), dtype=bool if name == "projector_on" else np.float64)
+    for rows, values in parts:
+        out[rows] = values
+    return out
+
+
+def _size(rows, total: int) -> int:
+    return len(range(*rows.indices(total))) if isinstance(rows, slice) else len(rows)
+
+
+def _rows_by_stop(d):
+    """(stop index, its rows) for every stop in `d`: slices when the rows come stop by stop."""
+    slices = d.stop_slices()
+    if slices is not None:
+        return [(int(d.stop[sl.start]), sl) for sl in slices]
+    return [(int(s), np.flatnonzero(d.stop == s)) for s in np.unique(d.stop)]

@@ -1,0 +1,154 @@
+"""The composite log-likelihood of a model's prediction, evaluated stop by stop.
+
+Three parts:
+- Each pixel's sample variance s2 is Gamma-distributed with mean sigma^2 (the model's variance)
+  and var(s2) = sigma^4 (2 / nu + excess / n), the excess kurtosis measured (model-free) in the
+  pixel's range window; with excess = 0 this is exactly the paper's Gaussian likelihood of the
+  samples about the pixel means (paper, "Experimental parameter estimation"). Per pixel, with shape
+  a: a ln(a s2 / sigma^2) - a s2 / sigma^2 - ln Gamma(a) - ln s2; the terms of the data alone are
+  summed once (`gamma_constant`).
+- The measured kurtosis of each range window is normal about the kurtosis the model predicts
+  (3 plus its fourth cumulant over sigma^4, averaged over the window's usable pixels by their
+  samples), with its own standard error: heavy tails (outliers) or truncation (censoring) show
+  there, and a model cannot buy tolerance for a wrong variance by claiming a scatter the data do
+  not have.
+- Each stop's fill rate (the share of its pixel-frames with a sample) is normal about the model's
+  mean over the stop's pixels, with its binomial standard error: samples a model says are dropped
+  (censoring) must be missing.
+
+Every part is a sum over pixels (or a ratio of sums per window and per stop), so a model is
+evaluated stop by stop (`model_loglik`) with arrays the size of one stop, and the same sums serve
+grouped data (`rig.models.grouping`), whose rows carry the weights of the pixels they stand for:
+`likelihood_weights` gives, per row, a (the Gamma shape), b (a s2), the kurtosis weight (n where
+the pixel's kurtosis is usable) and the pixel count.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.special import gammaln
+
+if TYPE_CHECKING:
+    from .composition import Model
+    from .data import ModelData
+    from .prediction import Prediction
+
+
+def likelihood_weights(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | float]:
+    """Per row: (a, b, kurtosis weight, pixels); grouped data carry their own (`rig.models.grouping`)."""
+    own = getattr(d, "weights", None)
+    if own is not None:
+        return own
+    a = d.gamma_shape
+    return a, a * d.s2_m2, np.where(d.kurtosis_usable, d.n, 0.0), 1.0
+
+
+def gamma_constant(d: ModelData) -> float:
+    """The data-only terms of the Gamma log-likelihood: sum of a ln a - ln Gamma(a) + (a - 1) ln s2."""
+    own = getattr(d, "constant", None)
+    if own is not None:
+        return own
+    cached = d.__dict__.get("gamma_constant")
+    if cached is None:
+        a = d.gamma_shape
+        cached = d.__dict__["gamma_constant"] = float(np.sum(a * np.log(a) - gammaln(a) + (a - 1) * np.log(d.s2_m2)))
+    return cached
+
+
+def fill_by_stop(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error)."""
+    stops, idx = np.unique(d.stop, return_inverse=True)
+    frames = d.n / np.maximum(d.fill, 1e-12)
+    count = np.bincount(idx, minlength=len(stops)).astype(float)
+    measured = np.bincount(idx, weights=d.fill, minlength=len(stops)) / count
+    binomial = np.sqrt(np.bincount(idx, weights=d.fill * (1 - d.fill) / frames, minlength=len(stops))) / count
+    one_sample = 1.0 / np.bincount(idx, weights=frames, minlength=len(stops))
+    return idx, measured, np.maximum(binomial, one_sample)
+
+
+class LoglikSums:
+    """The sums the composite log-likelihood is made of, added chunk by chunk (see the module docstring).
+
+    `data` is the whole data: its measured kurtosis by range window and fill rate by stop are what the
+    predictions are compared with."""
+
+    def __init__(self, data: ModelData):
+        self.windows, self.kurt_measured, self.kurt_se = data.kurtosis_by_range
+        self.stops, self.fill_measured, self.fill_se = _fill_table(data)
+        self.gamma = 0.0
+        self.constant = 0.0
+        self.kurt_num = np.zeros(len(self.windows))
+        self.kurt_den = np.zeros(len(self.windows))
+        self.fill_sum = np.zeros(len(self.stops))
+        self.fill_count = np.zeros(len(self.stops))
+
+    def add(self, d: ModelData, var: np.ndarray, k4: np.ndarray | None, fill: np.ndarray | float | None,
+            *, constant: bool = False) -> None:
+        """Add the rows of `d` (a chunk of the data, or all of it) with their predicted variance, fourth
+        cumulant and fill; with `constant`, also their data-only Gamma terms."""
+        a, b, kw, pw = likelihood_weights(d)
+        self.gamma += float(np.sum(-a * np.log(var) - b / var))
+        if constant:
+            self.constant += gamma_constant(d)
+        if len(self.windows):
+            excess = 0.0 if k4 is None else np.where(kw > 0, k4 / var**2, 0.0)
+            pos = np.searchsorted(self.windows, d.range_group)
+            pos = np.minimum(pos, len(self.windows) - 1)
+            hit = self.windows[pos] == d.range_group
+            w = np.where(hit, kw, 0.0)
+            self.kurt_num += np.bincount(pos, weights=w * excess, minlength=len(self.windows))
+            self.kurt_den += np.bincount(pos, weights=w, minlength=len(self.windows))
+        pos = np.searchsorted(self.stops, d.stop)
+        f = np.broadcast_to(np.asarray(1.0 if fill is None else fill, dtype=float), var.shape)
+        pix = np.broadcast_to(np.asarray(pw, dtype=float), var.shape)
+        self.fill_sum += np.bincount(pos, weights=f * pix, minlength=len(self.stops))
+        self.fill_count += np.bincount(pos, weights=pix, minlength=len(self.stops))
+
+    def total(self) -> float:
+        kurt = 0.0
+        if len(self.windows):
+            predicted = 3.0 + self.kurt_num / np.maximum(self.kurt_den, 1e-300)
+            z = (self.kurt_measured - predicted) / self.kurt_se
+            kurt = float(-0.5 * np.sum(z * z))
+        fill = 0.0
+        seen = self.fill_count > 0
+        if seen.any():
+            z = (self.fill_measured[seen] - self.fill_sum[seen] / self.fill_count[seen]) / self.fill_se[seen]
+            fill = float(-0.5 * np.sum(z * z))
+        return self.gamma + self.constant + kurt + fill
+
+
+def _fill_table(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stop indices, measured fill, its standard error), one entry per stop, from the whole data."""
+    own = getattr(d, "fill_table", None)
+    if own is not None:
+        return own
+    _, measured, se = d.fill_by_stop
+    return np.unique(d.stop), measured, se
+
+
+def loglik(d: ModelData, var: np.ndarray, k4: np.ndarray | None, fill: np.ndarray | float | None = None) -> float:
+    """The composite log-likelihood of one prediction for every row of `d`."""
+    sums = LoglikSums(d)
+    sums.add(d, var, k4, fill, constant=False)
+    return sums.total() + gamma_constant(d)
+
+
+def model_loglik(model: Model, values: dict[str, float], d: ModelData) -> float:
+    """The composite log-likelihood of `model` with parameter `values`, evaluated stop by stop."""
+    prepare(d)
+    sums = LoglikSums(d)
+    for c in d.chunks():
+        pred: Prediction = model.predict(values, c)
+        sums.add(c, pred.var_m2, pred.k4_m4, pred.fill)
+    return sums.total() + gamma_constant(d)
+
+
+def prepare(d: ModelData) -> None:
+    """Compute, once, what every evaluation uses, so the chunks of `d` share it instead of each making its own."""
+    if getattr(d, "weights", None) is not None:
+        return
+    for name in ("nu", "s2_m2", "z0_m", "range_group", "kurtosis_usable", "gamma_shape", "kurtosis_by_range", "fill_by_stop"):
+        getattr(d, name)

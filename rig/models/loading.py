@@ -1,0 +1,108 @@
+"""A recording's stops as model data: every pixel with two or more samples, read once, stop by stop.
+
+Each stop is read, checked (`protocols.recording.check_stop`) and reduced to its kept pixels' rows
+(range, M2, M4, count, position) and to what its covariates are later computed from (a
+`StopSource`: the smoothed IR and ambient images, the wall plane, the drift), then dropped. The rows
+go straight into arrays sized for every pixel of every stop, trimmed once at the end, so no stop's
+images and no second copy of the rows are held while the next stop is read.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocols.recording import Recording, StopData
+
+from .covariates import StopSource
+
+#: the matching window over which brightness is averaged (px)
+BRIGHTNESS_WINDOW_PX = 7
+
+
+@dataclass
+class RecordingRows:
+    """What `read_rows` returns: the kept pixels' core arrays, one `StopSource` per stop, the per-stop facts
+    (label, frames, frame-mean series variance, valid pixels per frame, middle time in s) and the pixels left
+    out for zero variance."""
+
+    arrays: dict[str, np.ndarray]
+    sources: list[StopSource]
+    facts: dict[str, list]
+    dropped_zero: int
+
+
+def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bool = False) -> RecordingRows:
+    """All pixels with at least `min_count` valid samples (with `positive_variance`, also M2 > 0), from every
+    complete stop, with the stop sources their covariates come from."""
+    cal = recording.calibration
+    labels = recording.stop_labels()
+    rows = _Rows(len(labels) * cal.width * cal.height)
+    sources: list[StopSource] = []
+    facts: dict[str, list] = {"label": [], "frames": [], "series_var_inv2": [], "n_valid": [], "time_s": []}
+    dropped_zero = 0
+    for i, label in enumerate(labels):
+        stop = recording.stop(label, third_moment=False)
+        s = stop.stats
+        with np.errstate(invalid="ignore"):
+            keep = (s.count >= max(2, min_count)) & np.isfinite(s.mean_m) & (s.mean_m > 0)
+        if positive_variance:
+            zero = keep & ~(s.m2_m2 > 0)
+            dropped_zero += int(zero.sum())
+            keep &= ~zero
+        rows.add(i, s, keep)
+        sources.append(StopSource.of(stop, keep, cal, BRIGHTNESS_WINDOW_PX))
+        _add_stop_facts(facts, stop)
+    if rows.size == 0:
+        raise ValueError(f"{recording.path}: no pixel has 2 or more valid samples; nothing to fit (check the stops and the camera's fill rate)")
+    if not np.any(rows.m2[: rows.size] > 0):
+        raise ValueError(f"{recording.path}: every pixel's samples are identical (zero variance), so there is no noise to "
+                         "fit; the frames are copies of one image: record or import frames captured one after another")
+    return RecordingRows(rows.arrays(), sources, facts, dropped_zero)
+
+
+class _Rows:
+    """The core per-pixel arrays, filled stop by stop, trimmed at the end."""
+
+    def __init__(self, capacity: int):
+        self.size = 0
+        self.z = np.empty(capacity)
+        self.m2 = np.empty(capacity)
+        self.m4 = np.empty(capacity)
+        self.n = np.empty(capacity)
+        self.stop = np.empty(capacity, np.int32)
+        self.u = np.empty(capacity, np.float32)
+        self.v = np.empty(capacity, np.float32)
+
+    def add(self, index: int, s, keep: np.ndarray) -> None:
+        v, u = np.nonzero(keep)
+        a, b = self.size, self.size + len(u)
+        self.z[a:b] = s.mean_m[v, u]
+        self.m2[a:b] = s.m2_m2[v, u]
+        self.m4[a:b] = s.m4_m4[v, u]
+        self.n[a:b] = s.count[v, u]
+        self.stop[a:b] = index
+        self.u[a:b] = u
+        self.v[a:b] = v
+        self.size = b
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        k = self.size
+        # a copy only when much was left out: otherwise the views keep a little unused memory
+        trim = (lambda x: x[:k].copy()) if k < 0.8 * len(self.z) else (lambda x: x[:k])
+        return {"z_m": trim(self.z), "m2_m2": trim(self.m2), "m4_m4": trim(self.m4), "n": trim(self.n),
+                "stop": trim(self.stop), "u_px": trim(self.u), "v_px": trim(self.v)}
+
+
+def _add_stop_facts(table: dict[str, list], stop: StopData) -> None:
+    series = stop.series
+    size = stop.stats.count.size
+    table["label"].append(stop.label)
+    table["frames"].append(stop.n_frames)
+    o = series.inverse_range_offset_per_m if series is not None else np.array([])
+    table["series_var_inv2"].append(float(np.var(o, ddof=1)) if len(o) >= 3 and np.isfinite(o).all() else np.nan)
+    frac = series.valid_fraction if series is not None else np.array([])
+    table["n_valid"].append(float(np.mean(frac)) * size if len(frac) and np.isfinite(frac).all() else np.nan)
+    ts = series.timestamp_ms if series is not None else np.array([])
+    table["time_s"].append(float(np.mean(ts)) / 1000.0 if len(ts) and np.isfinite(ts).all() else np.nan)

@@ -1,0 +1,166 @@
+"""The distribution's shape, measured model-free: each pixel's kurtosis, standardised by its neighbours'
+variance, and the kurtosis of each range window pooled from them.
+
+Per pixel the work is done within a stop (neighbours are pixels of the same stop), so it can go stop by
+stop; the range windows' pooled kurtosis is a sum over all stops (`KurtosisSums`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .data import ModelData
+
+#: side of the square of neighbouring pixels, centred on a pixel, whose pooled variance standardises its fourth moment
+KURTOSIS_WINDOW_PX = 7
+#: rounding to the depth unit adding more than this share of the variance makes a pixel's kurtosis meaningless
+ROUNDING_SHARE = 0.02
+#: usable pixels a range window needs for its kurtosis to count
+MIN_KURTOSIS_PIXELS = 20
+
+
+def neighbour_variance(d: ModelData) -> tuple[np.ndarray, np.ndarray]:
+    """For each pixel, the variance pooled over the other pixels of the KURTOSIS_WINDOW_PX square centred
+    on it at the same stop, and its degrees of freedom (NaN where too few, or positions unknown). Centred,
+    so a variance changing linearly across the image is the pixel's own on average."""
+    if len(d) == 0 or not (np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()):
+        nan = np.full(len(d), np.nan)
+        return nan, nan
+    from scipy.ndimage import uniform_filter
+
+    u, v = d.u_px.astype(np.int64), d.v_px.astype(np.int64)
+    shape = (int(v.max()) + 1, int(u.max()) + 1)
+    m2_out, nu_out = np.empty(len(d)), np.empty(len(d))
+    size = KURTOSIS_WINDOW_PX * KURTOSIS_WINDOW_PX
+    slices = d.stop_slices()
+    groups = slices if slices is not None else [np.flatnonzero(d.stop == s) for s in np.unique(d.stop)]
+    nu = d.nu
+    for m in groups:
+        m2_img, nu_img = np.zeros(shape), np.zeros(shape)
+        vm, um = v[m], u[m]
+        m2_img[vm, um] = d.m2_m2[m]
+        nu_img[vm, um] = nu[m]
+        m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+        nu_sum = uniform_filter(nu_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+        m2_out[m] = m2_sum[vm, um] - d.m2_m2[m]
+        nu_out[m] = np.round(nu_sum[vm, um] - nu[m])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(nu_out > 4, m2_out / nu_out, np.nan), np.where(nu_out > 4, nu_out, np.nan)
+
+
+def pixel_kurtosis(d: ModelData) -> np.ndarray:
+    """Each pixel's unbiased estimate of its samples' kurtosis (3 for a normal distribution).
+
+    M4 is standardised by the variance v its neighbours measure (`neighbour_variance`), not by
+    a model's variance, which is what is in doubt. For samples about their own mean,
+    E[M4] / sigma^4 = (n - 1) / n^2 ((n^2 - 3n + 3) beta + 3 (2n - 3)); v's own noise is removed
+    by E[1 / v^2] = nu^2 / ((nu - 2)(nu - 4)) / sigma^4 (v ~ sigma^2 chi2_nu / nu). NaN where it
+    cannot be formed."""
+    v, nu_v = d.neighbour_variance
+    n = d.n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m4_over_sigma4 = d.m4_m4 / v**2 * (nu_v - 2) * (nu_v - 4) / nu_v**2
+        return (m4_over_sigma4 * n**2 / (n - 1) - 3 * (2 * n - 3)) / (n**2 - 3 * n + 3)
+
+
+def kurtosis_usable(d: ModelData) -> np.ndarray:
+    """Pixels whose kurtosis estimate means something: formed, and not dominated by rounding to the
+    depth unit (q^2 / 12 below ROUNDING_SHARE of the neighbours' variance), where the samples are
+    a few discrete levels whose spread depends on each pixel's own position between them."""
+    v, _ = d.neighbour_variance
+    q2 = d.depth_unit_m**2 if np.isfinite(d.depth_unit_m) else 0.0
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(d.pixel_kurtosis) & (q2 / 12 < ROUNDING_SHARE * v)
+
+
+class KurtosisSums:
+    """Per range window, the sums that pool pixel kurtosis estimates (`pooled_kurtosis`), added stop by stop."""
+
+    def __init__(self) -> None:
+        self.sums: dict[int, np.ndarray] = {}  # window -> [count, sum w, sum w b, sum w^2, sum w^2 b, sum w^2 b^2]
+
+    def add(self, window: np.ndarray, beta: np.ndarray, w: np.ndarray) -> None:
+        ok = np.isfinite(beta)
+        if not ok.any():
+            return
+        g, b, w = window[ok], beta[ok], w[ok]
+        lo = int(g.min())
+        idx = g - lo
+        size = int(idx.max()) + 1
+        parts = [np.bincount(idx, weights=x, minlength=size) for x in (np.ones_like(b), w, w * b, w * w, w * w * b, w * w * b * b)]
+        for i in np.flatnonzero(parts[0]):
+            key = lo + int(i)
+            row = np.array([p[i] for p in parts])
+            self.sums[key] = self.sums.get(key, 0.0) + row
+
+    def pooled(self, window: int) -> tuple[float, float]:
+        """(samples-weighted mean kurtosis, its standard error from the scatter), as `pooled_kurtosis`."""
+        s = self.sums.get(window)
+        if s is None or s[0] < 3:
+            return float("nan"), float("nan")
+        k, sw, swb, sw2, sw2b, sw2b2 = s
+        mean = swb / sw
+        scatter = max(sw2b2 - 2 * mean * sw2b + mean * mean * sw2, 0.0)
+        return float(mean), float(np.sqrt(scatter / (k - 1) * k) / sw)
+
+
+def pooled_kurtosis(beta: np.ndarray, n: np.ndarray) -> tuple[float, float]:
+    """Samples-weighted mean of pixel kurtosis estimates, and its standard error from their scatter."""
+    ok = np.isfinite(beta)
+    if ok.sum() < 3:
+        return float("nan"), float("nan")
+    b, w = beta[ok], n[ok]
+    mean = float(np.sum(w * b) / np.sum(w))
+    se = float(np.sqrt(np.sum(w**2 * (b - mean) ** 2) / (ok.sum() - 1) * ok.sum()) / np.sum(w))
+    return mean, se
+
+
+def kurtosis_by_range(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(range windows, measured kurtosis, its standard error) for windows with MIN_KURTOSIS_PIXELS usable pixels.
+    Stop by stop: a stop's per-pixel estimates are made and dropped, only the windows' sums are kept."""
+    sums, usable_count = KurtosisSums(), {}
+    for c in _stop_views(d):
+        use = c.kurtosis_usable
+        g = c.range_group[use]
+        sums.add(g, c.pixel_kurtosis[use], c.n[use])
+        for key, cnt in zip(*np.unique(g, return_counts=True)):
+            usable_count[int(key)] = usable_count.get(int(key), 0) + int(cnt)
+    windows, measured, se = [], [], []
+    for g in sorted(usable_count):
+        if usable_count[g] < MIN_KURTOSIS_PIXELS:
+            continue
+        k, e = sums.pooled(g)
+        if np.isfinite(k) and e > 0:
+            windows.append(g)
+            measured.append(k)
+            se.append(e)
+    return np.array(windows, dtype=np.int64), np.array(measured), np.array(se)
+
+
+def excess_measured(d: ModelData) -> np.ndarray:
+    """Each pixel's excess kurtosis as its range window measures it (0 where not measured), for the
+    Gamma law's shape: the scatter of s2 across pixels comes from the data, not from a model."""
+    windows, measured, _ = d.kurtosis_by_range
+    excess = np.zeros(len(d))
+    if len(windows):
+        lo = int(min(windows.min(), d.range_group.min())) if len(d) else 0
+        table = np.zeros(int(max(windows.max(), d.range_group.max() if len(d) else 0)) - lo + 1)
+        table[windows - lo] = measured - 3.0
+        excess = table[d.range_group - lo]
+    return np.maximum(excess, -1.5)
+
+
+def _stop_views(d: ModelData):
+    """The stops of `d` as views that compute their own per-pixel statistics (the parent's, where it has them)."""
+    if all(name in d.__dict__ for name in ("pixel_kurtosis", "kurtosis_usable", "range_group")):
+        yield d
+        return
+    slices = d.stop_slices()
+    if slices is None or len(slices) <= 1:
+        yield d
+        return
+    for sl in slices:
+        yield d._taken(sl, derived=True)
