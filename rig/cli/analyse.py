@@ -102,13 +102,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         for note in r.notes:
             print(f"note: {note}")
         from ..diagnosis import headline
-        from ..models import Model, power_law
 
         mode = "projector on" if r.projector_on else "projector off"
         print(f"{r.path}: {r.protocol}, {mode}")
         print(r.fit.report())
-        d = r.samples.positive_variance()
-        print(f"    headline error: {headline(Model(power_law).fit(d), d)}")
+        print(f"    headline error: {headline(r.fit, r.samples.positive_variance())}")
         print(f"    (what is missing? rig diagnose {args.recording})")
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range

@@ -16,7 +16,8 @@ import numpy as np
 
 from ..models import ModelData, Prediction
 from ..models.data import RANGE_BIN_M, range_bin_index
-from ..models.shape_statistics import pooled_kurtosis
+from ..models.group_sums import group_sums
+from ..models.shape_statistics import pooled_from_sums
 
 RADIUS_EDGES = (0.0, 0.3, 0.6, np.inf)
 MIN_PIXELS_PER_BIN = 20
@@ -43,65 +44,103 @@ class BinComparison:
         return np.abs(self.log_ratio) > 3 * self.se_log
 
 
-def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: np.ndarray,
-                 labels_of: dict[int, str] | None = None) -> BinComparison:
-    """Pool measured and predicted variance (and kurtosis) within each group (integer labels)."""
+#: the per-pixel columns a bin sums (`bin_columns`), then the family's own: nu times its covariate
+COLUMNS = ("pixels", "nu", "m2", "weight", "n_excess", "n_usable", "w2_nu", "w2_n", "shared",
+           "k_count", "k_w", "k_wb", "k_w2", "k_w2b", "k_w2b2")
+
+
+def bin_columns(d: ModelData, pred: Prediction) -> np.ndarray:
+    """The per-pixel quantities every bin pools (COLUMNS): pixels, nu, M2; with weight = nu var_pred, the weight,
+    sum n excess_pred and n over the pixels whose kurtosis is usable; weight^2 (2 / nu) shared and weight^2 / n
+    shared for the sampling error; the sharing factor; and the pooling sums of the usable pixels' kurtosis
+    estimates b with weights w = n (count, w, w b, w^2, w^2 b, w^2 b^2)."""
     nu, n = d.nu, d.n
-    m2 = d.s2_m2 * nu
     var_p = pred.var_m2
-    excess_p = (pred.k4_m4 / var_p**2) if pred.k4_m4 is not None else np.zeros(len(d))
-    beta = d.pixel_kurtosis
     usable = d.kurtosis_usable
+    excess_p = (pred.k4_m4 / var_p**2) if pred.k4_m4 is not None else 0.0
     # noise shared by neighbouring pixels (a frame-mean gain A > 1, rig.models.empirical) makes their variances
     # co-vary: for a Gaussian-shaped correlation, sum over neighbours of rho^2 is about (A - 1) / 2
-    shared = 1.0 + (np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), var_p.shape) - 1.0) / 2.0
-    shared = np.maximum(shared, 1.0)
-    out: dict[str, list] = {k: [] for k in ("labels", "center", "sm", "sp", "lr", "se", "km", "kp", "sk", "px")}
-    for g in np.unique(groups):
-        m = groups == g
-        if m.sum() < MIN_PIXELS_PER_BIN:
-            continue
-        W = nu[m].sum()
-        var_meas = m2[m].sum() / W
-        var_pred = (nu[m] * var_p[m]).sum() / W
-        mk = m & usable
-        kurt, se_kurt = pooled_kurtosis(beta[mk], n[mk]) if mk.sum() >= MIN_PIXELS_PER_BIN else (np.nan, np.nan)
-        excess = (kurt - 3) if np.isfinite(kurt) else 0.0
-        # var(pooled variance) / pooled^2; pixels weighted by their predicted variance, so a bin that pools
-        # stops of very different sigma gets the few degrees of freedom that dominate it
-        weight = nu[m] * var_p[m]
-        var_s2 = np.sum(weight**2 * (2 / nu[m] + excess / n[m]) * shared[m]) / np.sum(weight) ** 2
-        out["labels"].append(labels_of.get(int(g), str(g)) if labels_of else str(g))
-        out["center"].append(float((nu[m] * covariate[m]).sum() / W))
-        out["sm"].append(np.sqrt(var_meas))
-        out["sp"].append(np.sqrt(var_pred))
-        out["lr"].append(0.5 * np.log(var_meas / var_pred))
-        out["se"].append(0.5 * np.sqrt(max(var_s2, 1e-30)))
-        out["km"].append(kurt)
-        out["kp"].append(3 + float((n[mk] * excess_p[mk]).sum() / max(n[mk].sum(), 1e-300)))
-        out["sk"].append(se_kurt * np.sqrt(float(np.mean(shared[m]))))
-        out["px"].append(int(m.sum()))
-    a = {k: np.array(v) for k, v in out.items() if k != "labels"}
-    return BinComparison(out["labels"], a["center"], a["sm"], a["sp"], a["lr"], a["se"], a["km"], a["kp"], a["sk"], a["px"])
+    shared = np.maximum(1.0 + (np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), var_p.shape) - 1.0) / 2.0, 1.0)
+    weight = nu * var_p
+    w2s = weight * weight * shared
+    w = np.where(usable, n, 0.0)
+    b = np.where(usable, d.pixel_kurtosis, 0.0)
+    wb = w * b
+    table = np.empty((len(COLUMNS), len(d)))
+    for i, col in enumerate((1.0, nu, d.m2_m2, weight, w * excess_p, w, w2s * 2.0 / nu, w2s / n, shared, usable, w, wb,
+                             w * w, wb * w, wb * wb)):
+        table[i] = col
+    return table
+
+
+class BinSums:
+    """The sums `compare_bins` pools in each bin (COLUMNS, and nu times the covariate), added chunk by chunk;
+    rows with a negative label are left out."""
+
+    def __init__(self) -> None:
+        self.sums: dict[int, np.ndarray] = {}
+
+    def add(self, columns: np.ndarray, groups: np.ndarray, covariate: np.ndarray) -> None:
+        """Add rows: their `bin_columns`, bin labels and covariate."""
+        keys, sums = group_sums(groups, columns, more=columns[1] * np.nan_to_num(covariate), skip_below=0)
+        for key, row in zip(keys.tolist(), sums):
+            self.sums[key] = self.sums[key] + row if key in self.sums else row
+
+    def finish(self, labels_of: dict[int, str] | None = None) -> BinComparison:
+        out: dict[str, list] = {k: [] for k in ("labels", "center", "sm", "sp", "lr", "se", "km", "kp", "sk", "px")}
+        for g in sorted(self.sums):
+            (px, W, m2, nu_var, n_excess, n_use, w2_nu, w2_n, shared, k_count, k_w, k_wb, k_w2, k_w2b, k_w2b2,
+             nu_x) = self.sums[g]
+            if px < MIN_PIXELS_PER_BIN:
+                continue
+            var_meas, var_pred = m2 / W, nu_var / W
+            kurt, se_kurt = (pooled_from_sums(k_count, k_w, k_wb, k_w2, k_w2b, k_w2b2) if k_count >= MIN_PIXELS_PER_BIN
+                             else (np.nan, np.nan))
+            excess = (kurt - 3) if np.isfinite(kurt) else 0.0
+            # var(pooled variance) / pooled^2; pixels weighted by their predicted variance, so a bin that pools
+            # stops of very different sigma gets the few degrees of freedom that dominate it
+            var_s2 = (w2_nu + excess * w2_n) / nu_var**2
+            out["labels"].append(labels_of.get(int(g), str(g)) if labels_of else str(g))
+            out["center"].append(float(nu_x / W))
+            out["sm"].append(np.sqrt(var_meas))
+            out["sp"].append(np.sqrt(var_pred))
+            out["lr"].append(0.5 * np.log(var_meas / var_pred))
+            out["se"].append(0.5 * np.sqrt(max(var_s2, 1e-30)))
+            out["km"].append(kurt)
+            out["kp"].append(3 + float(n_excess / max(n_use, 1e-300)))
+            out["sk"].append(se_kurt * np.sqrt(float(shared / px)))
+            out["px"].append(int(px))
+        a = {k: np.array(v, dtype=float) for k, v in out.items() if k != "labels"}
+        return BinComparison(out["labels"], a["center"], a["sm"], a["sp"], a["lr"], a["se"], a["km"], a["kp"], a["sk"],
+                             a["px"].astype(int))
+
+
+def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: np.ndarray,
+                 labels_of: dict[int, str] | None = None) -> BinComparison:
+    """Pool measured and predicted variance (and kurtosis) within each group (integer labels; negative: left out)."""
+    sums = BinSums()
+    sums.add(bin_columns(d, pred), np.asarray(groups).astype(np.int64), np.asarray(covariate, dtype=float))
+    return sums.finish(labels_of)
+
+
+def subset(pred: Prediction, mask: np.ndarray) -> Prediction:
+    """The prediction for the rows where `mask` is true (scalars stay scalars)."""
+    def part(x):
+        return x[mask] if isinstance(x, np.ndarray) and x.ndim else x
+
+    return Prediction(part(pred.shot_m2), part(pred.illum), part(pred.image_terms), part(pred.var_m2),
+                      part(pred.k4_m4), part(pred.fill), part(pred.common_inv2), part(pred.frame_mean_gain))
+
+
+def range_labels(windows) -> dict[int, str]:
+    """Labels of 0.25 m range windows (`range_bin_index`): '0.875-1.125 m'."""
+    return {int(k): f"{(k - 0.5) * RANGE_BIN_M:.3f}-{(k + 0.5) * RANGE_BIN_M:.3f} m" for k in windows}
 
 
 def range_bins(z_m: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
     """0.25 m windows centred on multiples of 0.25 m, so a perpendicular stop falls in one window."""
     b = range_bin_index(z_m)
-    return b, {int(k): f"{(k - 0.5) * RANGE_BIN_M:.3f}-{(k + 0.5) * RANGE_BIN_M:.3f} m" for k in np.unique(b)}
-
-
-def range_radius_groups(d: ModelData) -> tuple[np.ndarray, dict[int, str]]:
-    r_bin, r_labels = range_bins(d.z_m)
-    rho = np.sqrt(d.rho2)
-    q_bin = np.digitize(rho, RADIUS_EDGES[1:-1])
-    g = r_bin * 10 + q_bin
-    labels = {}
-    for gg in np.unique(g):
-        rb, qb = divmod(int(gg), 10)
-        hi = RADIUS_EDGES[qb + 1]
-        labels[int(gg)] = f"{r_labels[rb]}, rho {RADIUS_EDGES[qb]:.1f}-" + ("" if np.isinf(hi) else f"{hi:.1f}")
-    return g, labels
+    return b, range_labels(np.unique(b))
 
 
 @dataclass
@@ -117,16 +156,14 @@ class BinnedSigma:
 
 def pooled_sigma(samples: ModelData, groups: np.ndarray, labels: list[str] | None = None) -> BinnedSigma:
     """Pool the variance within each group (e.g. stop index or range bin)."""
-    keys = np.unique(groups)
+    w = np.maximum(samples.dof, 0.0)
+    keys, sums = group_sums(np.asarray(groups).astype(np.int64), [w, np.where(w > 0, samples.m2_m2, 0.0), w * samples.z_m])
     z, s, se, d, lab = [], [], [], [], []
-    for g in keys:
-        m = (groups == g) & (samples.dof > 0)
-        w = samples.dof[m]
-        W = w.sum()
+    for g, (W, M, WZ) in zip(keys.tolist(), sums):
         if W <= 0:
             continue
-        sig = np.sqrt(samples.m2_m2[m].sum() / W)
-        z.append(float(np.sum(w * samples.z_m[m]) / W))
+        sig = np.sqrt(M / W)
+        z.append(float(WZ / W))
         s.append(sig)
         se.append(sig / np.sqrt(2 * W))
         d.append(W)

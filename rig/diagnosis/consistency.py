@@ -26,12 +26,16 @@ worst bin.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.stats import chi2
 
-from ..models import ModelData, Prediction
+from ..models import ModelData
 from .bins import BinComparison
+
+if TYPE_CHECKING:
+    from .residuals import StopSums
 
 #: family-wise false-alarm rate of the verdict "within noise"
 ALPHA = 1e-3
@@ -100,37 +104,34 @@ def kurtosis_check(b: BinComparison) -> Check | None:
                  (b.kurt_meas[ok] - b.kurt_pred[ok]) / b.se_kurt[ok])
 
 
-def fill_check(d: ModelData, pred: Prediction) -> Check:
-    """Each stop's fill rate against the model's (`ModelData.fill_by_stop`: the statistic the likelihood weighs)."""
-    idx, measured, se = d.fill_by_stop
-    fill = np.broadcast_to(np.asarray(pred.fill if pred.fill is not None else 1.0, dtype=float), d.z_m.shape)
-    count = np.bincount(idx, minlength=len(measured))
-    predicted = np.bincount(idx, weights=fill, minlength=len(measured)) / count
-    center = np.bincount(idx, weights=d.z_m, minlength=len(measured)) / count
-    stops = np.unique(d.stop)
-    labels = [_stop_label(d, int(s)) for s in stops]
-    return Check("fill rate", "stop", labels, center, measured, predicted, se, (measured - predicted) / se)
+def fill_check(d: ModelData, stops: StopSums) -> Check:
+    """Each stop's fill rate against the model's mean over the stop's pixels, with its binomial standard error
+    (the statistic the likelihood weighs, `rig.models.likelihood`)."""
+    keys = sorted(stops.rows)
+    rows = np.array([stops.rows[k] for k in keys]).reshape(len(keys), -1)
+    count, fill, binomial, frames, predicted, z = (rows[:, i] for i in range(6))
+    measured = fill / count
+    se = np.maximum(np.sqrt(binomial) / count, 1.0 / frames)
+    labels = [_stop_label(d, k) for k in keys]
+    return Check("fill rate", "stop", labels, z / count, measured, predicted / count, se, (measured - predicted / count) / se)
 
 
-def frame_mean_check(d: ModelData, pred: Prediction) -> Check | None:
-    """The variance over frames of each stop's frame-mean series against what the model predicts."""
+def frame_mean_check(d: ModelData, stops: StopSums) -> Check | None:
+    """The variance over frames of each stop's frame-mean series against what the model predicts: the sum over
+    the stop's pixels of var / Z^4 (times a frame-mean gain) over n_valid^2, plus any common wander (drift)."""
     t = d.stops
     if t is None or not np.isfinite(t.series_var_inv2).any():
         return None
-    common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), d.z_m.shape)
-    gain = np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), d.z_m.shape)
-    independent_inv2 = (pred.var_m2 - common * d.z_m**4) / d.z_m**4 * gain
     labels, center, meas, predicted, se, dof = [], [], [], [], [], []
-    for s in np.unique(d.stop):
-        s = int(s)
+    for s in sorted(stops.rows):
         measured, n_valid, frames = t.series_var_inv2[s], t.n_valid[s], t.frames[s]
         if not (np.isfinite(measured) and np.isfinite(n_valid) and n_valid > 1 and frames > 3 and measured > 0):
             continue
-        m = d.stop == s
+        count, independent, common = stops.rows[s][0], stops.rows[s][6], stops.rows[s][7]
         # pixels that never changed (all samples on one depth level) are not in the data and add nothing
-        expected = float(np.sum(independent_inv2[m])) / n_valid**2 + float(np.mean(common[m]))
+        expected = float(independent) / n_valid**2 + float(common / count)
         labels.append(_stop_label(d, s))
-        center.append(float(np.median(d.z_m[m])))
+        center.append(stops.median_z[s])
         meas.append(measured)
         predicted.append(expected)
         se.append(measured * np.sqrt(2.0 / (frames - 1)))

@@ -1,6 +1,11 @@
 """Where a fitted model fails: measured against predicted sigma by range, radius, image position, IR
 brightness and incidence, kurtosis by range, fill rate by stop and the frame mean over time; and the
-verdict on all of them (`rig.diagnosis.consistency`)."""
+verdict on all of them (`rig.diagnosis.consistency`).
+
+Everything is a sum per bin, so the data are visited stop by stop, twice: once for what the bins
+are (the largest radius, the brightness quantiles, the span of incidence angles), once for the
+model's prediction, added into every family's sums at once. No array larger than a stop is made.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models import ModelData, ModelFit, Prediction
-from .bins import BinComparison, compare_bins, range_bins
+from ..models.data import range_bin_index
+from .bins import RADIUS_EDGES, BinComparison, BinSums, bin_columns, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, sigma_check
 
 #: image tiles for the position family (columns, rows)
@@ -26,6 +32,7 @@ class Residuals:
     by_brightness: BinComparison | None
     by_incidence: BinComparison | None
     consistency: Consistency
+    by_range_radius: BinComparison | None = None  # the headline's bins (`rig.diagnosis.scores`)
 
     @property
     def image_map(self) -> np.ndarray:
@@ -46,91 +53,143 @@ class Residuals:
         return [] if c is None else [(lab, float(m), float(p)) for lab, m, p in zip(c.labels, c.measured, c.predicted)]
 
 
-def radius_groups(d: ModelData) -> tuple[np.ndarray, dict[int, str]]:
-    rho = np.sqrt(d.rho2)
-    edges = np.linspace(0, rho.max() + 1e-9, 6)
-    return np.digitize(rho, edges[1:-1]), {i: f"rho {edges[i]:.2f}-{edges[i + 1]:.2f}" for i in range(5)}
-
-
-def position_groups(d: ModelData) -> tuple[np.ndarray, dict[int, str]]:
-    """The image in POSITION_TILES tiles (all stops pooled); labels are the tile's index, row-major."""
-    nx, ny = POSITION_TILES
-    tx = np.clip((d.u_px / (np.nanmax(d.u_px) + 1) * nx).astype(int), 0, nx - 1)
-    ty = np.clip((d.v_px / (np.nanmax(d.v_px) + 1) * ny).astype(int), 0, ny - 1)
-    g = ty * nx + tx
-    return g, {int(k): str(int(k)) for k in np.unique(g)}
-
-
 def position_label(label: str) -> str:
     nx, _ = POSITION_TILES
     k = int(label)
     return f"image tile column {k % nx + 1} of {nx}, row {k // nx + 1}"
 
 
-def brightness_groups(d: ModelData) -> tuple[np.ndarray, dict[int, str], np.ndarray] | None:
-    """Six quantile bins of the IR brightness, and which pixels have one; None without IR images."""
-    ok = np.isfinite(d.ir)
-    if ok.sum() <= 100:
-        return None
-    q = np.nanquantile(d.ir, np.linspace(0, 1, 7))
-    bq = np.where(ok, np.clip(np.digitize(np.nan_to_num(d.ir), q[1:-1]), 0, 5), -1)
-    return bq, {i: f"IR {q[i]:.0f}-{q[i + 1]:.0f} DN" for i in range(6)}, bq >= 0
+@dataclass
+class _Layout:
+    """What the bins are, from a first pass over the data."""
+
+    rho_edges: np.ndarray
+    tiles: tuple[float, float] | None  # largest u and v + 1, px (None: positions unknown)
+    ir_edges: np.ndarray | None  # brightness quantiles (None: no IR)
+    angle_edges: np.ndarray | None  # incidence angles, deg (None: all rays meet the wall at about one angle)
+    range_windows: set
+
+    @classmethod
+    def of(cls, d: ModelData) -> "_Layout":
+        rho_max, u_max, v_max, a_lo, a_hi, windows, ir_parts = 0.0, -np.inf, -np.inf, np.inf, -np.inf, set(), []
+        for c in d.chunks():
+            if len(c) == 0:
+                continue
+            rho_max = max(rho_max, float(np.sqrt(np.max(c.rho2))))
+            u_max, v_max = max(u_max, float(np.nanmax(c.u_px))), max(v_max, float(np.nanmax(c.v_px)))
+            angle = _angle(c)
+            a_lo, a_hi = min(a_lo, float(angle.min())), max(a_hi, float(angle.max()))
+            windows.update(np.unique(range_bin_index(c.z_m)).tolist())
+            ir = c.ir
+            ir_parts.append(ir[np.isfinite(ir)].astype(np.float32))
+        positions = len(d) and np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()
+        ir = np.concatenate(ir_parts) if ir_parts else np.zeros(0)
+        ir_edges = np.quantile(ir.astype(np.float64), np.linspace(0, 1, 7)) if ir.size > 100 else None
+        angle_edges = np.linspace(a_lo, a_hi + 1e-9, 6) if a_hi - a_lo > 1 else None
+        return cls(np.linspace(0, rho_max + 1e-9, 6), (u_max + 1, v_max + 1) if positions else None, ir_edges,
+                   angle_edges, windows)
+
+    def families(self, c: ModelData) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """(bin label, covariate) per row of chunk `c`, for every family (label -1: not in the family)."""
+        rho = np.sqrt(c.rho2)
+        r_bin = range_bin_index(c.z_m)
+        out = {"range": (r_bin, c.z_m), "radius": (np.digitize(rho, self.rho_edges[1:-1]), rho),
+               "range_radius": (r_bin * 10 + np.digitize(rho, RADIUS_EDGES[1:-1]), c.z_m)}
+        if self.tiles is not None:
+            nx, ny = POSITION_TILES
+            tx = np.clip((c.u_px / self.tiles[0] * nx).astype(int), 0, nx - 1)
+            ty = np.clip((c.v_px / self.tiles[1] * ny).astype(int), 0, ny - 1)
+            g = ty * nx + tx
+            out["position"] = (g, g.astype(float))
+        if self.ir_edges is not None:
+            ir = c.ir
+            ok = np.isfinite(ir)
+            out["brightness"] = (np.where(ok, np.clip(np.digitize(np.nan_to_num(ir), self.ir_edges[1:-1]), 0, 5), -1), ir)
+        if self.angle_edges is not None:
+            angle = _angle(c)
+            out["incidence"] = (np.digitize(angle, self.angle_edges[1:-1]), angle)
+        return out
+
+    def labels(self) -> dict[str, dict[int, str]]:
+        e = self.rho_edges
+        out = {"range": range_labels(self.range_windows), "radius": {i: f"rho {e[i]:.2f}-{e[i + 1]:.2f}" for i in range(5)}}
+        r_labels, rr = out["range"], {}
+        for rb in self.range_windows:
+            for qb in range(len(RADIUS_EDGES) - 1):
+                hi = RADIUS_EDGES[qb + 1]
+                rr[int(rb) * 10 + qb] = f"{r_labels[rb]}, rho {RADIUS_EDGES[qb]:.1f}-" + ("" if np.isinf(hi) else f"{hi:.1f}")
+        out["range_radius"] = rr
+        if self.ir_edges is not None:
+            q = self.ir_edges
+            out["brightness"] = {i: f"IR {q[i]:.0f}-{q[i + 1]:.0f} DN" for i in range(6)}
+        if self.angle_edges is not None:
+            a = self.angle_edges
+            out["incidence"] = {i: f"{a[i]:.0f}-{a[i + 1]:.0f} deg" for i in range(5)}
+        return out
 
 
-def incidence_groups(d: ModelData) -> tuple[np.ndarray, dict[int, str], np.ndarray] | None:
-    """Five bins of the incidence angle (deg); None when all rays meet the wall at about one angle."""
-    angle = np.degrees(np.arccos(np.clip(d.cos_inc, -1, 1)))
-    if np.ptp(angle) <= 1:
-        return None
-    edges = np.linspace(angle.min(), angle.max() + 1e-9, 6)
-    return np.digitize(angle, edges[1:-1]), {i: f"{edges[i]:.0f}-{edges[i + 1]:.0f} deg" for i in range(5)}, angle
+def _angle(c: ModelData) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip(c.cos_inc, -1, 1)))
+
+
+class StopSums:
+    """Per stop: measured and predicted fill rate, and the frame mean's predicted variance, added chunk by chunk."""
+
+    def __init__(self) -> None:
+        self.rows: dict[int, np.ndarray] = {}  # stop -> sums (see `add`)
+        self.median_z: dict[int, float] = {}
+
+    def add(self, c: ModelData, pred: Prediction) -> None:
+        fill_p = np.broadcast_to(np.asarray(pred.fill if pred.fill is not None else 1.0, dtype=float), c.z_m.shape)
+        common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), c.z_m.shape)
+        gain = np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), c.z_m.shape)
+        z4 = c.z_m**4
+        independent = (pred.var_m2 - common * z4) / z4 * gain
+        frames = c.n / np.maximum(c.fill, 1e-12)
+        present = np.unique(c.stop)
+        for s in present:
+            m = slice(None) if len(present) == 1 else (c.stop == s)
+            f = c.fill[m]
+            row = np.array([np.size(f), f.sum(), (f * (1 - f) / frames[m]).sum(), frames[m].sum(), fill_p[m].sum(),
+                            c.z_m[m].sum(), independent[m].sum(), common[m].sum()])
+            key = int(s)
+            self.rows[key] = self.rows[key] + row if key in self.rows else row
+            self.median_z[key] = float(np.median(c.z_m[m]))  # a stop comes in one chunk
 
 
 def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Residuals:
-    """Every comparison of `fit` with the data, and the verdict on them."""
-    pred = pred if pred is not None else fit.predict(d)
-    r_bin, r_labels = range_bins(d.z_m)
-    by_range = compare_bins(d, pred, r_bin, d.z_m, r_labels)
-    g, labels = radius_groups(d)
-    by_radius = compare_bins(d, pred, g, np.sqrt(d.rho2), labels)
-    checks: list[Check] = [sigma_check(by_range, "range"), sigma_check(by_radius, "radius")]
-    by_position = None
-    if len(d) and np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all():
-        g, labels = position_groups(d)
-        by_position = compare_bins(d, pred, g, g.astype(float), labels)
+    """Every comparison of `fit` with the data, and the verdict on them. With `pred` (the prediction for every
+    row of `d`), in one piece; otherwise stop by stop."""
+    layout = _Layout.of(d)
+    sums = {name: BinSums() for name in ("range", "radius", "range_radius", "position", "brightness", "incidence")}
+    stops = StopSums()
+    for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.chunks())):
+        columns = bin_columns(c, p)
+        for name, (groups, covariate) in layout.families(c).items():
+            sums[name].add(columns, groups, covariate)
+        stops.add(c, p)
+    labels = layout.labels()
+    done = {name: sums[name].finish(labels.get(name)) for name in sums if sums[name].sums}
+    checks: list[Check] = [sigma_check(done["range"], "range"), sigma_check(done["radius"], "radius")]
+    by_position = done.get("position")
+    if by_position is not None:
         check = sigma_check(by_position, "position")
         check.labels = [position_label(lab) for lab in check.labels]
         checks.append(check)
-    by_brightness = None
-    bright = brightness_groups(d)
-    if bright is not None:
-        g, labels, sel = bright
-        by_brightness = compare_bins(d.select(sel), _subset(pred, sel), g[sel], d.ir[sel], labels)
-        checks.append(sigma_check(by_brightness, "brightness"))
-    by_incidence = None
-    inc = incidence_groups(d)
-    if inc is not None:
-        g, labels, angle = inc
-        by_incidence = compare_bins(d, pred, g, angle, labels)
-        checks.append(sigma_check(by_incidence, "incidence"))
-    kurt = kurtosis_check(by_range)
+    for name in ("brightness", "incidence"):
+        if name in done:
+            checks.append(sigma_check(done[name], name))
+    kurt = kurtosis_check(done["range"])
     if kurt is not None:
         checks.append(kurt)
-    checks.append(fill_check(d, pred))
-    frame_mean = frame_mean_check(d, pred)
+    checks.append(fill_check(d, stops))
+    frame_mean = frame_mean_check(d, stops)
     if frame_mean is not None:
         checks.append(frame_mean)
-    return Residuals(by_range, by_radius, by_position, by_brightness, by_incidence, Consistency(checks))
+    return Residuals(done["range"], done["radius"], by_position, done.get("brightness"), done.get("incidence"),
+                     Consistency(checks), done.get("range_radius"))
 
 
 def consistency(fit: ModelFit, d: ModelData) -> Consistency:
     """The verdict on every statistic `fit` predicts (see `rig.diagnosis.consistency`)."""
     return residuals(fit, d).consistency
-
-
-def _subset(pred: Prediction, mask: np.ndarray) -> Prediction:
-    def part(x):
-        return x[mask] if isinstance(x, np.ndarray) else x
-
-    return Prediction(pred.shot_m2[mask], pred.illum[mask], pred.image_terms[mask], pred.var_m2[mask],
-                      part(pred.k4_m4), part(pred.fill), part(pred.common_inv2), part(pred.frame_mean_gain))

@@ -25,7 +25,6 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..models import Model, ModelData, ModelFit
-from .bins import compare_bins, range_radius_groups
 from .consistency import ALPHA, Consistency
 from .residuals import residuals
 
@@ -81,17 +80,17 @@ class Headline:
 
 
 def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
-    """The headline error of `fit`; with `checks`, also the verdict on every other statistic it predicts."""
-    pred = fit.predict(d)
-    groups, labels = range_radius_groups(d)
-    b = compare_bins(d, pred, groups, d.z_m, labels)
+    """The headline error of `fit`; with `checks`, also the verdict on every other statistic it predicts. One
+    pass over the data (`rig.diagnosis.residuals`) gives both."""
+    r = residuals(fit, d)
+    b = r.by_range_radius
     stat = float(np.sum((b.log_ratio / b.se_log) ** 2))
     dof = max(1, len(b.log_ratio) - fit.n_free)
     return Headline(
         error_pct=100 * float(np.sqrt(np.mean(b.log_ratio**2))),
         noise_pct=100 * float(np.sqrt(np.mean(b.se_log**2))),
         chi2=stat, dof=dof, p_value=float(chi2.sf(stat, dof)), bins=len(b.log_ratio),
-        consistency=residuals(fit, d, pred).consistency if checks else None,
+        consistency=r.consistency if checks else None,
     )
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..models import BASES, Catalogue, Model, ModelData, ModelFit, power_law, with_errors
+from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors
 from ..models.progress import ProgressCounter, ProgressFn
 from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
 from .residuals import Residuals, residuals
@@ -198,7 +198,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
     counter.step(f"fitting {model.name}")
     fit = model.fit(d)
     counter.step("fitting power_law")
-    pl = fit if model.name == "power_law" else Model(power_law).fit(d)
+    pl = fit_power_law(d)  # the paper's fit, for reference: closed form
     steps = [Step(fit, headline(fit, d))]
     steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter)  # shown even when nothing is missing
     while not steps[-1].headline.within_noise and len(steps) <= max_steps:

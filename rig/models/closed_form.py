@@ -13,6 +13,10 @@ L = sum_p w_p ln z_p:
     dl/dlam = -L + B(lam) / k^2 = 0,     B = sum_p M_p z_p^(-2 lam) ln z_p   (eq. lambda_mle)
 Hessian at the optimum: d2l/dk2 = -2W/k^2, d2l/dk dlam = -2B/k^3, d2l/dlam2 = -2C/k^2 with
 C = sum_p M_p z_p^(-2 lam) (ln z_p)^2.
+
+With k profiled out, -l is f(lam) = W/2 ln A(lam) + lam L + const, convex (f'' = 2 W (A C - B^2) / A^2 >= 0
+by Cauchy-Schwarz), with f' = L - W B / A: lambda is found by Newton's method on f', each step one pass
+over the pixels for A, B and C together (`_sums`, compiled), bisection keeping it inside LAMBDA_BOUNDS.
 """
 
 from __future__ import annotations
@@ -20,16 +24,71 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from numba import njit
 
 LAMBDA_BOUNDS = (-2.0, 8.0)
 
 
-def _sums(z: np.ndarray, m2: np.ndarray, lam: float, z_ref: float) -> tuple[float, float, float]:
-    """A, B, C of the module docstring, computed with z / z_ref for numerical range."""
-    lz = np.log(z / z_ref)
-    t = m2 * np.exp(-2.0 * lam * lz)
-    return float(t.sum()), float((t * lz).sum()), float((t * lz * lz).sum())
+@njit(cache=True, nogil=True)
+def _sums(lz, m2, lam):  # pragma: no cover - compiled
+    """A, B, C of the module docstring in one pass, with lz = ln(z / z_ref) for numerical range."""
+    a = b = c = 0.0
+    for i in range(lz.size):
+        t = m2[i] * np.exp(-2.0 * lam * lz[i])
+        tl = t * lz[i]
+        a += t
+        b += tl
+        c += tl * lz[i]
+    return a, b, c
+
+
+@njit(cache=True, nogil=True)
+def _degrees_of_freedom(z, n):  # pragma: no cover - compiled
+    """Over the pixels with two or more samples: W = sum (n - 1), sum (n - 1) ln z, pixels, samples, z range."""
+    W = s = 0.0
+    pixels = samples = 0
+    lo, hi = np.inf, -np.inf
+    for i in range(z.size):
+        if n[i] > 1:
+            w = n[i] - 1.0
+            W += w
+            s += w * np.log(z[i])
+            pixels += 1
+            samples += int(n[i])
+            lo = min(lo, z[i])
+            hi = max(hi, z[i])
+    return W, s, pixels, samples, lo, hi
+
+
+@njit(cache=True, nogil=True)
+def _log_ratio(z, n, log_ref):  # pragma: no cover - compiled
+    out = np.zeros(z.size)
+    for i in range(z.size):
+        if n[i] > 1:
+            out[i] = np.log(z[i]) - log_ref
+    return out
+
+
+def _solve_lambda(lz: np.ndarray, m2: np.ndarray, W: float, L: float) -> float:
+    """The lambda where f'(lam) = L - W B / A = 0 (module docstring): Newton, safeguarded by bisection."""
+    lo, hi = LAMBDA_BOUNDS
+    lam = 2.5
+    for _ in range(200):
+        a, b, c = _sums(lz, m2, lam)
+        g = L - W * b / a
+        if g > 0:
+            hi = lam
+        else:
+            lo = lam
+        curvature = 2.0 * W * (a * c - b * b) / (a * a)
+        step = g / curvature if curvature > 0 else np.inf
+        new = lam - step
+        if not lo < new < hi:
+            new = 0.5 * (lo + hi)
+        if abs(new - lam) < 1e-13 * max(1.0, abs(lam)) or hi - lo < 1e-13:
+            return float(new)
+        lam = new
+    return float(lam)
 
 
 @dataclass(frozen=True)
@@ -54,28 +113,24 @@ def power_law_mle(z_m: np.ndarray, m2_m2: np.ndarray, n: np.ndarray, *, lam: flo
 
     Pixels whose samples were all equal (M = 0) count with their degrees of freedom, as the
     paper's Gaussian likelihood of the samples has them."""
-    w = n - 1.0
-    ok = w > 0
-    z, m2, w = z_m[ok], m2_m2[ok], w[ok]
-    if len(z) == 0:
+    z_m = np.ascontiguousarray(z_m, dtype=np.float64)
+    n = np.ascontiguousarray(n, dtype=np.float64)
+    m2 = np.ascontiguousarray(m2_m2, dtype=np.float64)
+    W, sum_wlz, pixels, samples, z_lo, z_hi = _degrees_of_freedom(z_m, n)
+    if pixels == 0:
         raise ValueError("no pixel has two or more samples; nothing to fit")
-    W = float(w.sum())
     # Work with z / z_ref (geometric mean) so exp(-2 lam ln z) stays in range; k is converted back.
-    z_ref = float(np.exp(np.sum(w * np.log(z)) / W))
-    lz = np.log(z / z_ref)
-    L = float(np.sum(w * lz))
-
-    def neg_profile(lam_: float) -> float:
-        a, _, _ = _sums(z, m2, lam_, z_ref)
-        return 0.5 * W * np.log(a / W) + lam_ * L
+    z_ref = float(np.exp(sum_wlz / W))
+    lz = _log_ratio(z_m, n, np.log(z_ref))  # 0 weight (M = 0, lz = 0) for pixels with fewer than two samples
+    m2 = np.where(n > 1, m2, 0.0) if pixels < len(n) else m2
+    L = 0.0  # sum w ln(z / z_ref) is 0 by the choice of z_ref
 
     fixed = lam is not None
     if not fixed:
-        if np.ptp(lz) < 1e-9:
+        if z_hi - z_lo < 1e-9 * z_hi:
             raise ValueError("all pixels are at the same range; lambda cannot be estimated (fit with lambda fixed)")
-        res = minimize_scalar(neg_profile, bounds=LAMBDA_BOUNDS, method="bounded", options={"xatol": 1e-10})
-        lam = float(res.x)
-    a, b, c = _sums(z, m2, lam, z_ref)
+        lam = _solve_lambda(lz, m2, W, L)
+    a, b, c = _sums(lz, m2, float(lam))
     k2 = a / W
     k_ref = np.sqrt(k2)  # k for z measured in units of z_ref
     # k_ref (z/z_ref)^lam = k z^lam, so the log-likelihood is the same in either form
@@ -92,5 +147,4 @@ def power_law_mle(z_m: np.ndarray, m2_m2: np.ndarray, n: np.ndarray, *, lam: flo
     dk_dlam = -k * np.log(z_ref)
     jac = np.array([[dk_dkref, dk_dlam], [0.0, 1.0]])
     cov_k = jac @ cov @ jac.T
-    return PowerLawEstimate(float(k), float(lam), cov_k, float(loglik), W, int(len(z)), int(n[ok].sum()),
-                            (float(z.min()), float(z.max())), fixed)
+    return PowerLawEstimate(float(k), float(lam), cov_k, float(loglik), W, int(pixels), int(samples), (z_lo, z_hi), fixed)

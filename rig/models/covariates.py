@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.ndimage import gaussian_filter
 
 from drivers.image_regions import center_box
@@ -61,19 +62,39 @@ class StopSource:
 def plane_normal(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibration) -> np.ndarray:
     """Unit normal of the plane fitted to the stop's mean depth (see `incidence_cosine`); (0, 0, 1) with fewer
     than three valid pixels. The least-squares fit of 1/Z = p xn + q yn + r, by its normal equations."""
-    v, u = np.nonzero(valid)
-    if len(u) < 3:
+    ata, atb, count = _plane_sums(np.ascontiguousarray(mean_m, dtype=np.float64), np.ascontiguousarray(valid),
+                                  cal.cx, cal.cy, cal.fx, cal.fy)
+    if count < 3:
         return np.array([0.0, 0.0, 1.0])
-    xn, yn = (u - cal.cx) / cal.fx, (v - cal.cy) / cal.fy
-    inv = 1.0 / mean_m[v, u]
-    cols = (xn, yn, np.ones_like(xn))
-    ata = np.array([[np.dot(a, b) for b in cols] for a in cols])
-    atb = np.array([np.dot(a, inv) for a in cols])
     try:
         coef = np.linalg.solve(ata, atb)
     except np.linalg.LinAlgError:
-        coef, *_ = np.linalg.lstsq(np.column_stack(cols), inv, rcond=None)
+        coef = np.linalg.lstsq(ata, atb, rcond=None)[0]
     return coef / np.linalg.norm(coef)  # plane: p X + q Y + r Z = 1
+
+
+@njit(cache=True, nogil=True)
+def _plane_sums(mean_m, valid, cx, cy, fx, fy):  # pragma: no cover - compiled
+    """A^T A and A^T b of the fit 1/Z = p xn + q yn + r over the valid pixels, in one pass over the image."""
+    ata = np.zeros((3, 3))
+    atb = np.zeros(3)
+    row = np.empty(3)
+    count = 0
+    h, w = mean_m.shape
+    for v in range(h):
+        for u in range(w):
+            if not valid[v, u]:
+                continue
+            row[0] = (u - cx) / fx
+            row[1] = (v - cy) / fy
+            row[2] = 1.0
+            inv = 1.0 / mean_m[v, u]
+            for i in range(3):
+                atb[i] += row[i] * inv
+                for j in range(3):
+                    ata[i, j] += row[i] * row[j]
+            count += 1
+    return ata, atb, count
 
 
 def incidence_from_normal(normal: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -173,8 +194,11 @@ def covariate_rows(name: str, d) -> np.ndarray:
         out = np.full(len(d), np.nan)
         for s, rows in _rows_by_stop(d):
             image = sources[s].ir_dn if name == "ir" else sources[s].ambient
-            if image is not None:
-                out[rows] = image[d.v_px[rows].astype(np.intp), d.u_px[rows].astype(np.intp)]
+            if image is not None:  # the nearest pixel (grouped data's nodes sit between pixels)
+                h, w = image.shape
+                vi = np.clip(np.rint(d.v_px[rows]), 0, h - 1).astype(np.intp)
+                ui = np.clip(np.rint(d.u_px[rows]), 0, w - 1).astype(np.intp)
+                out[rows] = image[vi, ui]
         return out
     per_stop = {"fill": lambda src, rows: d.n[rows] / src.n_frames,
                 "drift_var_m2": lambda src, rows: src.drift_var_m2(d.z_m[rows]),

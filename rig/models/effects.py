@@ -23,10 +23,13 @@ class Effect(Component):
     """A physical effect the base model leaves out.
 
     stage: where it joins (see `EffectStage`); needs: the covariates it uses; signature: the residual
-    pattern it explains, in plain words; explanation: what it means physically.
+    pattern it explains, in plain words; explanation: what it means physically; groupable: its prediction is
+    smooth within a small tile of the image, so large data may be fitted on grouped nodes
+    (`rig.models.grouping`); False for what depends on each pixel's own place on the depth grid.
     """
 
     role = "effect"
+    groupable: ClassVar[bool] = True
     stage: ClassVar[EffectStage]
     needs: ClassVar[tuple[str, ...]] = ()
     signature: ClassVar[str] = ""
@@ -204,6 +207,7 @@ class Quantization(Effect):
 
     name = "quantization"
     stage = EffectStage.QUANTIZE
+    groupable = False  # each pixel's own offset from the depth grid
     params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
     signature = "the error levels off at short range near the size of the depth unit"
     explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "

@@ -36,6 +36,7 @@ from scipy.special import expit
 from .composition import Component
 from .data import ModelData
 from .effects import Effect
+from .likelihood import pixel_weights
 from .parameters import Param
 from .prediction import EffectStage, Prediction
 
@@ -114,8 +115,8 @@ class EmpiricalSigma(Effect):
         return c
 
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
-        if self.knots is None:
-            axis = self._axis(self.read(d))
+        if self.knots is None:  # from the pixels themselves, also when the fit runs on grouped nodes
+            axis = self._axis(self.read(getattr(d, "full", d)))
             self.knots = np.exp(_spaced_knots(axis, len(self.params) + 1)) if self.covariate in LOG_COVARIATES \
                 else _spaced_knots(axis, len(self.params) + 1)
         return {q.name: 0.0 for q in self.params}
@@ -161,8 +162,8 @@ class _RangeShape(Effect):
     knots: np.ndarray | None = None
 
     def start(self, d, pred):
-        if self.knots is None:
-            self.knots = _spaced_knots(np.log(d.z0_m), len(self.params))
+        if self.knots is None:  # from the pixels themselves, also when the fit runs on grouped nodes
+            self.knots = _spaced_knots(np.log(getattr(d, "full", d).z0_m), len(self.params))
         return {q.name: q.value for q in self.params}
 
     def curve(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
@@ -232,7 +233,7 @@ class EmpiricalFrameMean(_MeasuredRangeGain):
         """Set the gain from the per-frame series of every stop against the prediction `pred`."""
         t = d.stops
         common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), d.z_m.shape)
-        independent = (pred.var_m2 - common * d.z_m**4) / d.z_m**4
+        independent = (pred.var_m2 - common * d.z_m**4) / d.z_m**4 * pixel_weights(d)
         z, ratio, weight = [], [], []
         for s in np.unique(d.stop):
             s = int(s)

@@ -45,6 +45,12 @@ def likelihood_weights(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return a, a * d.s2_m2, np.where(d.kurtosis_usable, d.n, 0.0), 1.0
 
 
+def pixel_weights(d: ModelData) -> np.ndarray | float:
+    """How many pixels each row stands for: 1 for pixels, the node weights for grouped data."""
+    own = getattr(d, "weights", None)
+    return own[3] if own is not None else 1.0
+
+
 def gamma_constant(d: ModelData) -> float:
     """The data-only terms of the Gamma log-likelihood: sum of a ln a - ln Gamma(a) + (a - 1) ln s2."""
     own = getattr(d, "constant", None)

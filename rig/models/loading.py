@@ -76,12 +76,12 @@ class _Rows:
         self.v = np.empty(capacity, np.float32)
 
     def add(self, index: int, s, keep: np.ndarray) -> None:
-        v, u = np.nonzero(keep)
+        v, u = np.nonzero(keep)  # row-major, the order boolean indexing takes them in
         a, b = self.size, self.size + len(u)
-        self.z[a:b] = s.mean_m[v, u]
-        self.m2[a:b] = s.m2_m2[v, u]
-        self.m4[a:b] = s.m4_m4[v, u]
-        self.n[a:b] = s.count[v, u]
+        self.z[a:b] = s.mean_m[keep]
+        self.m2[a:b] = s.m2_m2[keep]
+        self.m4[a:b] = s.m4_m4[keep]
+        self.n[a:b] = s.count[keep]
         self.stop[a:b] = index
         self.u[a:b] = u
         self.v[a:b] = v

@@ -55,19 +55,24 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
 
 
 def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
-              hold: frozenset[str] = frozenset()) -> ModelFit:
+              hold: frozenset[str] = frozenset(), grouped: bool = True) -> ModelFit:
     """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao), unless
     `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later).
-    Parameters named in `hold` stay at their `start` values (a quick conditional fit)."""
+    Parameters named in `hold` stay at their `start` values (a quick conditional fit).
+
+    Large data are fitted on their grouped nodes (`rig.models.grouping`, a second-order expansion of the
+    likelihood about each small tile), when every effect of the model is smooth within a tile and `grouped`
+    is true; the log-likelihood reported is then evaluated on every pixel at the optimum."""
     model.check(d)
+    work = fit_data(model, d) if grouped else d
     values = {n: p.value for n, p in model.parameters()}
     # the base alone has a closed-form fit (the paper's): start there
-    base_fit = power_law_mle(d.z_m, d.m2_m2, d.n, lam=model.base.lam)
+    base_fit = _paper_fit(d, model.base.lam)
     values["k"], values["lambda"] = base_fit.k, base_fit.lam
     partial = type(model)(model.base)
     for e in model.effects:
-        pred = partial.predict(values, d)
-        for k, v in e.start(d, pred).items():
+        pred = partial.predict(values, work)
+        for k, v in e.start(work, pred).items():
             values[f"{e.name}.{k}" if "." not in k else k] = v
         partial = partial + e
     if start:
@@ -88,7 +93,7 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
 
     def objective(y: np.ndarray) -> float:
         try:
-            ll = model.loglik(unpack(y), d)
+            ll = model.loglik(unpack(y), work)
         except FloatingPointError:
             return 1e30
         return -ll / scale if np.isfinite(ll) else 1e30
@@ -98,13 +103,12 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
         # effects trade off against lambda: also start from the physical exponent (paper: 3 with
         # the projector on, 2 off) with k refitted for it
         lam_phys = 3.0 if d.projector_on.mean() > 0.5 else 2.0
-        alt = dict(values, **{"lambda": lam_phys, "k": power_law_mle(d.z_m, d.m2_m2, d.n, lam=lam_phys).k})
+        alt = dict(values, **{"lambda": lam_phys, "k": _paper_fit(d, lam_phys).k})
         starts.append(pack(alt))
-    res = None
+    summary = dict(n_obs=len(d), n_samples=d.n_samples, dof=float(d.nu.sum()), z_range_m=(float(d.z_m.min()), float(d.z_m.max())))
     if not free:
-        ll = model.loglik(values, d)
-        return ModelFit(model, values, {}, ll, len(d), d.n_samples, True, "nothing to fit", dof=float(d.nu.sum()),
-                        z_range_m=(float(d.z_m.min()), float(d.z_m.max())))
+        return ModelFit(model, values, {}, model.loglik(values, d), converged=True, message="nothing to fit", **summary)
+    res = None
     with np.errstate(all="ignore"):
         for y0 in starts:
             r = minimize(objective, y0, method="L-BFGS-B", options={"maxiter": 500, "ftol": 1e-15, "gtol": 1e-10})
@@ -121,10 +125,30 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
     y0 = starts[0]
     best = unpack(res.x)
     ll = model.loglik(best, d)
-    se, cov = _standard_errors(model, best, d, names) if errors else ({}, None)
-    return ModelFit(model, best, se, ll, len(d), d.n_samples, bool(res.success) or res.fun < objective(y0),
-                    str(res.message), dof=float(d.nu.sum()), z_range_m=(float(d.z_m.min()), float(d.z_m.max())),
-                    covariance=cov)
+    se, cov = _standard_errors(model, best, work, names) if errors else ({}, None)
+    return ModelFit(model, best, se, ll, converged=bool(res.success) or res.fun < objective(y0), message=str(res.message),
+                    covariance=cov, **summary)
+
+
+def fit_data(model: Model, d: ModelData) -> ModelData:
+    """What `model` is fitted on: the grouped nodes of `d` (made once, kept with `d`) when the data are large
+    enough and every effect of the model is smooth within a tile (`Effect.groupable`); else `d` itself."""
+    from .grouping import group, tile_size
+
+    if isinstance(getattr(d, "weights", None), tuple) or not all(getattr(e, "groupable", True) for e in model.effects):
+        return d
+    if "grouped" not in d.__dict__:
+        t = tile_size(d)
+        d.__dict__["grouped"] = group(d, t) if t else d
+    return d.__dict__["grouped"]
+
+
+def _paper_fit(d: ModelData, lam: float | None):
+    """The paper's closed-form fit of the power law (lambda free, or fixed at `lam`), kept with `d`."""
+    cache = d.__dict__.setdefault("paper_fits", {})
+    if lam not in cache:
+        cache[lam] = power_law_mle(d.z_m, d.m2_m2, d.n, lam=lam)
+    return cache[lam]
 
 
 def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:

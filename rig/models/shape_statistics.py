@@ -2,7 +2,7 @@
 variance, and the kurtosis of each range window pooled from them.
 
 Per pixel the work is done within a stop (neighbours are pixels of the same stop), so it can go stop by
-stop; the range windows' pooled kurtosis is a sum over all stops (`KurtosisSums`).
+stop; the range windows' pooled kurtosis is made of sums over all stops (`pooled_from_sums`).
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from .group_sums import group_sums
 
 if TYPE_CHECKING:
     from .data import ModelData
@@ -76,63 +78,31 @@ def kurtosis_usable(d: ModelData) -> np.ndarray:
         return np.isfinite(d.pixel_kurtosis) & (q2 / 12 < ROUNDING_SHARE * v)
 
 
-class KurtosisSums:
-    """Per range window, the sums that pool pixel kurtosis estimates (`pooled_kurtosis`), added stop by stop."""
-
-    def __init__(self) -> None:
-        self.sums: dict[int, np.ndarray] = {}  # window -> [count, sum w, sum w b, sum w^2, sum w^2 b, sum w^2 b^2]
-
-    def add(self, window: np.ndarray, beta: np.ndarray, w: np.ndarray) -> None:
-        ok = np.isfinite(beta)
-        if not ok.any():
-            return
-        g, b, w = window[ok], beta[ok], w[ok]
-        lo = int(g.min())
-        idx = g - lo
-        size = int(idx.max()) + 1
-        parts = [np.bincount(idx, weights=x, minlength=size) for x in (np.ones_like(b), w, w * b, w * w, w * w * b, w * w * b * b)]
-        for i in np.flatnonzero(parts[0]):
-            key = lo + int(i)
-            row = np.array([p[i] for p in parts])
-            self.sums[key] = self.sums.get(key, 0.0) + row
-
-    def pooled(self, window: int) -> tuple[float, float]:
-        """(samples-weighted mean kurtosis, its standard error from the scatter), as `pooled_kurtosis`."""
-        s = self.sums.get(window)
-        if s is None or s[0] < 3:
-            return float("nan"), float("nan")
-        k, sw, swb, sw2, sw2b, sw2b2 = s
-        mean = swb / sw
-        scatter = max(sw2b2 - 2 * mean * sw2b + mean * mean * sw2, 0.0)
-        return float(mean), float(np.sqrt(scatter / (k - 1) * k) / sw)
-
-
-def pooled_kurtosis(beta: np.ndarray, n: np.ndarray) -> tuple[float, float]:
-    """Samples-weighted mean of pixel kurtosis estimates, and its standard error from their scatter."""
-    ok = np.isfinite(beta)
-    if ok.sum() < 3:
+def pooled_from_sums(count: float, sw: float, swb: float, sw2: float, sw2b: float, sw2b2: float) -> tuple[float, float]:
+    """The samples-weighted mean of pixel kurtosis estimates b (weights w = n), and its standard error from their
+    scatter, sqrt(k / (k - 1) sum w^2 (b - mean)^2) / sum w, from the sums count k, w, w b, w^2, w^2 b, w^2 b^2."""
+    if count < 3:
         return float("nan"), float("nan")
-    b, w = beta[ok], n[ok]
-    mean = float(np.sum(w * b) / np.sum(w))
-    se = float(np.sqrt(np.sum(w**2 * (b - mean) ** 2) / (ok.sum() - 1) * ok.sum()) / np.sum(w))
-    return mean, se
+    mean = swb / sw
+    scatter = max(sw2b2 - 2 * mean * sw2b + mean * mean * sw2, 0.0)
+    return float(mean), float(np.sqrt(scatter / (count - 1) * count) / sw)
 
 
 def kurtosis_by_range(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(range windows, measured kurtosis, its standard error) for windows with MIN_KURTOSIS_PIXELS usable pixels.
     Stop by stop: a stop's per-pixel estimates are made and dropped, only the windows' sums are kept."""
-    sums, usable_count = KurtosisSums(), {}
+    totals: dict[int, np.ndarray] = {}
     for c in _stop_views(d):
         use = c.kurtosis_usable
-        g = c.range_group[use]
-        sums.add(g, c.pixel_kurtosis[use], c.n[use])
-        for key, cnt in zip(*np.unique(g, return_counts=True)):
-            usable_count[int(key)] = usable_count.get(int(key), 0) + int(cnt)
+        w, b = c.n[use], c.pixel_kurtosis[use]
+        keys, sums = group_sums(c.range_group[use], [1.0, w, w * b, w * w, w * w * b, w * w * b * b])
+        for key, row in zip(keys.tolist(), sums):
+            totals[key] = totals[key] + row if key in totals else row
     windows, measured, se = [], [], []
-    for g in sorted(usable_count):
-        if usable_count[g] < MIN_KURTOSIS_PIXELS:
+    for g in sorted(totals):
+        if totals[g][0] < MIN_KURTOSIS_PIXELS:
             continue
-        k, e = sums.pooled(g)
+        k, e = pooled_from_sums(*totals[g])
         if np.isfinite(k) and e > 0:
             windows.append(g)
             measured.append(k)

@@ -10,8 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..diagnosis.bins import compare_bins  # noqa: E402
-from ..diagnosis.residuals import _subset  # noqa: E402
+from ..diagnosis.bins import compare_bins, subset  # noqa: E402
 from ..diagnosis.unexplained import EmpiricalStep  # noqa: E402
 from ..models import ModelData, ModelFit  # noqa: E402
 from ..models.empirical import (COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition,  # noqa: E402
@@ -31,7 +30,7 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
         edges = np.unique(np.nanquantile(c[ok], np.linspace(0, 1, QUANTILE_BINS + 1)))
         groups = np.where(ok, np.clip(np.digitize(np.nan_to_num(c), edges[1:-1]), 0, len(edges) - 2), -1)
         sel = groups >= 0
-        b = compare_bins(d.select(sel), _subset(before.predict(d), sel), groups[sel], c[sel])
+        b = compare_bins(d.select(sel), subset(before.predict(d), sel), groups[sel], c[sel])
         ax.errorbar(b.center, np.exp(b.log_ratio), yerr=2 * b.se_log * np.exp(b.log_ratio), fmt="o", ms=4, capsize=2,
                     label=f"measured / {before.model.name} (±2 s.e.)")
         # what the model with the shape predicts against the model without it, in the same bins as the points
