@@ -290,8 +290,10 @@ class RecordingWriter:
         files = journal.completed_stop_files(self.path)
         if not files:
             with h5py.File(self.path, "r") as f:
-                if "ended_utc" in f.attrs:
-                    return
+                complete = "ended_utc" in f.attrs
+            if complete:  # a kill inside the last clean-up can leave the folder with no stop in it
+                shutil.rmtree(journal.journal_dir(self.path), ignore_errors=True)
+                return
         need, free = self.assembly_bytes(), free_bytes(self.path.parent)
         if need > free:
             raise RecordingError(f"disk full: assembling {self.path} needs about {megabytes(need)} and "
