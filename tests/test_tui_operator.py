@@ -278,7 +278,7 @@ def test_a_diagnosis_shows_progress_with_time_left_and_the_app_stays_responsive(
 def test_a_one_stop_recording_opens_with_a_message_and_a_broken_file_is_one_line(tmp_path):
     from simrig import record_perpendicular
 
-    one, _, _ = record_perpendicular(tmp_path / "one.h5", width=32, frames=8, stops_m=[1.0])
+    one, _, _ = record_perpendicular(tmp_path / "one.h5", width=16, frames=6, stops_m=[1.0])
     junk = tmp_path / "junk.h5"
     junk.write_text("not a recording")
 
@@ -301,6 +301,17 @@ def test_a_one_stop_recording_opens_with_a_message_and_a_broken_file_is_one_line
 NASTY = ["", "abc", "-1", "1e999", "nan", "0:0:0", "3:0.5:0.25", "0.5:3:-1", "/", "../..", "é€🙂", "9" * 40, " , , "]
 
 
+async def paste_into(pilot, field: str, text: str) -> None:
+    """Paste over a field's whole text (one event, as a terminal sends a paste; an empty text deletes it)."""
+    from textual import events
+
+    widget = pilot.app.query_one(f"#{field}", Input)
+    widget.focus()
+    widget.select_all()  # the paste replaces the whole text
+    widget.post_message(events.Paste(text) if text else events.Key("backspace", None))
+    await pilot.pause()
+
+
 def test_no_input_ends_the_app(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
 
@@ -308,17 +319,20 @@ def test_no_input_ends_the_app(tmp_path, monkeypatch):
         app = RigApp(CAMERA, "fake:", connect=False)
         async with app.run_test(size=(80, 24)) as pilot:
             await pilot.press("2")
-            fields = ["toml-path", "stops", "frames", "exposure", "gain", "output"]
-            for i, text in enumerate(NASTY):
-                await type_into(pilot, fields[i % len(fields)], text)
+            for field in ("toml-path", "stops", "frames", "exposure", "gain", "output"):
+                for text in NASTY:
+                    await paste_into(pilot, field, text)
+                    if field in ("frames", "gain") and text == "abc":  # the paste is refused, visibly
+                        assert app.query_one(f"#{field}", CheckedField).refused == ["abc"]
+                        assert app.experiment.checked_settings() is None
                 await pilot.press("ctrl+s", "ctrl+l", "escape")
             app.query_one("#protocol").value = "tilted"
-            for text in NASTY[:6]:
-                await type_into(pilot, "tilt", text)
-                await type_into(pilot, "distance", text)
+            for text in NASTY:
+                await paste_into(pilot, "tilt", text)
+                await paste_into(pilot, "distance", text)
             await pilot.press("ctrl+r", "escape", "4")
             for text in ("", str(tmp_path), "nothere.h5"):
-                await type_into(pilot, "recording-path", text)
+                await paste_into(pilot, "recording-path", text)
                 await pilot.press("enter")
                 await until(pilot, lambda: not app.results.busy, "the results screen")
             await pilot.press("escape", "o", "f", "space", "1", "c", "t", "h", "x")
