@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from drivers.camera import DepthCamera
+from drivers.errors import StageError
 from drivers.registry import DeviceSpec
 from drivers.stage import Stage
 
@@ -34,8 +35,13 @@ def fake_camera(spec: DeviceSpec, context: dict[str, Any]) -> DepthCamera:
 
 
 def fake_stage(spec: DeviceSpec, context: dict[str, Any]) -> Stage:
-    """Factory for the `fake:` stage (options speed, settle)."""
-    return FakeStage(shared_world(context), speed_m_s=spec.float("speed", 0.1), settle_s=spec.float("settle", 0.5))
+    """Factory for the `fake:` stage (options speed in m/s, settle in s, and its travel: min_m, max_m, the
+    nearest and farthest camera-to-wall distances, default 0.3 and 3.5)."""
+    lo, hi = spec.float("min_m", 0.3), spec.float("max_m", 3.5)
+    if not 0.0 <= lo < hi:
+        raise StageError(f"device {spec.text!r}: travel min_m={lo:g} to max_m={hi:g} m is empty; give 0 <= min_m < max_m")
+    return FakeStage(shared_world(context), limits_m=(lo, hi), speed_m_s=spec.float("speed", 0.1),
+                     settle_s=spec.float("settle", 0.5))
 
 
 class FollowingStage(Stage):

@@ -16,6 +16,8 @@ from pathlib import Path
 
 #: per-file overhead of HDF5 (superblock, object headers, B-trees), bytes; generous
 FILE_OVERHEAD_BYTES = 256 * 1024
+#: free space kept on top of what a stop (or a whole run) needs: the assembly at the end needs its own room
+RESERVE_BYTES = 1024 * 1024
 
 
 def stop_bytes(shape: tuple[int, int], n_frames: int, *, keep_raw: bool = False, ir: bool = True,
@@ -45,3 +47,8 @@ def is_disk_full(e: BaseException) -> bool:
 
 def megabytes(n: int) -> str:
     return f"{max(1, round(n / 1e6))} MB"
+
+
+def size_text(n: int) -> str:
+    """A size for people: MB below 10 GB, GB above."""
+    return megabytes(n) if n < 10e9 else f"{n / 1e9:.0f} GB"

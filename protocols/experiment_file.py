@@ -59,6 +59,10 @@ def load_experiment(path: str | Path) -> Experiment:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ExperimentFileError(f"{path} does not exist; see examples/*.toml for experiment files") from None
+    except (OSError, UnicodeDecodeError) as e:  # a folder, no permission, not text
+        why = e.strerror if isinstance(e, OSError) and e.strerror else type(e).__name__
+        raise ExperimentFileError(f"{path} cannot be read as an experiment file ({why}); give the path of a "
+                                  ".toml file, e.g. examples/perpendicular-active.toml") from None
     except tomllib.TOMLDecodeError as e:
         raise ExperimentFileError(f"{path} is not valid TOML ({e}); fix the line it names") from None
     unknown = set(data) - {"experiment", "parameters"}

@@ -30,7 +30,7 @@ from drivers.stage import NoStage
 
 from .plan import Capture, Configure, Move, Plan
 from .stop_journal import journal_dir
-from .runner import ProgressCallback, ProgressEvent, Runner, RunError
+from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
 
 PROTOCOL = "import"
 
@@ -95,6 +95,9 @@ def _record(stops: list[StopSource], settings: ImportSettings, shape: tuple[int,
     camera = FolderCamera(stops, settings, shape, src.resolve())
     try:
         Runner(camera, NoStage(), progress=progress, sleep=lambda s: None).run(import_plan(stops, settings, src.resolve()), path)
+    except PlanRefused as e:
+        raise FolderImportError(f"import of {src} refused before it started: {'; '.join(e.problems)}; "
+                                "nothing was written") from None
     except RunError as e:
         parts = str(e).split("; ")
         free = next((p.split(" and ")[0] for p in parts if p.startswith("free about")), "")

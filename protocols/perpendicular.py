@@ -11,7 +11,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from .capture_settings import CaptureSettings
-from .plan_values import number, whole
+from .plan_values import distance_m, frames
 from .plan import Configure, Home, Move, Plan, Settle, Step
 
 DEFAULT_STOPS_M = tuple(float(z) for z in np.round(np.arange(0.5, 3.0001, 0.25), 3))
@@ -30,13 +30,12 @@ def perpendicular(stops_m: Sequence[float] = DEFAULT_STOPS_M, frames_per_stop: i
     settings = CaptureSettings.from_options("perpendicular", capture)
     if isinstance(stops_m, (str, bytes)) or not hasattr(stops_m, "__iter__"):
         raise ValueError(f"perpendicular: stops_m = {stops_m!r} must be a list of distances in m, e.g. [0.5, 0.75, 1.0]")
-    stops = [number("perpendicular", "stops_m", z, 0.05, 100.0, "m") for z in stops_m]
+    stops = [distance_m("perpendicular", "stops_m", z) for z in stops_m]
     if not stops:
         raise ValueError("perpendicular: no stops given; pass stops_m, e.g. [0.5, 0.75, 1.0]")
     if len(set(stop_label(z) for z in stops)) != len(stops):
         raise ValueError("perpendicular: stops_m repeats a distance (to the mm); give each stop once")
-    frames_per_stop = whole("perpendicular", "frames_per_stop", frames_per_stop, 2, 1_000_000,
-                            "at least 2 frames are needed for a variance")
+    frames_per_stop = frames("perpendicular", "frames_per_stop", frames_per_stop)
     params = dict(stops_m=stops, frames_per_stop=frames_per_stop, **settings.to_params())
 
     def steps() -> Iterator[Step]:
@@ -47,4 +46,4 @@ def perpendicular(stops_m: Sequence[float] = DEFAULT_STOPS_M, frames_per_stop: i
             yield Settle(settings.settle_s)
             yield settings.capture(stop_label(z), frames_per_stop)
 
-    return Plan("perpendicular", params, steps)
+    return Plan("perpendicular", params, steps, stops_param="stops_m")

@@ -60,11 +60,17 @@ Step = Union[Home, Move, Settle, Configure, Capture]
 
 @dataclass
 class Plan:
-    """A named experiment: its parameters (recorded verbatim) and its steps."""
+    """A named experiment: its parameters (recorded verbatim) and its steps.
+
+    stops_param: the parameter that says where the stops are (perpendicular: `stops_m`); errors about
+    a stop's position name it, and it is the one parameter a resumed run may change
+    (`protocols.plan_check.resume_problems`).
+    """
 
     name: str
     params: dict[str, Any]
     make_steps: Callable[[], Iterator[Step]] = field(repr=False)
+    stops_param: str = ""
 
     def steps(self) -> Iterator[Step]:
         return self.make_steps()

@@ -10,6 +10,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
+#: frames in one capture: a variance needs at least two
+FRAMES = (2, 1_000_000)
+#: a camera-to-wall distance, m
+DISTANCE_M = (0.05, 100.0)
+
 
 def number(where: str, name: str, value: Any, lo: float, hi: float, unit: str = "") -> float:
     """A finite number in [lo, hi]."""
@@ -37,3 +42,13 @@ def flag(where: str, name: str, value: Any) -> bool:
     if not isinstance(value, bool):
         raise ValueError(f"{where}: {name} = {value!r} must be true or false")
     return value
+
+
+def frames(where: str, name: str, value: Any) -> int:
+    """A number of frames to capture for one variance (FRAMES)."""
+    return whole(where, name, value, *FRAMES, "at least 2 frames are needed for a variance")
+
+
+def distance_m(where: str, name: str, value: Any) -> float:
+    """A camera-to-wall distance in m (DISTANCE_M)."""
+    return number(where, name, value, *DISTANCE_M, "m")

@@ -5,7 +5,9 @@ reported done is readable and `--resume` carries on (the mechanism: `stop_journa
                                           stop is replaced, any other existing file is refused
     RecordingWriter(path, resume=True)    the file must be a rig recording; incomplete stops dropped
     start_experiment(...)                 writes the header (atomically), or on resume checks that
-                                          camera, stage, plan and settings are the same (`identity`)
+                                          camera and stage are the same (`identity`) and that the plan
+                                          changes only stops not yet recorded (`plan_check.resume_problems`);
+                                          such a change replaces the header's plan (atomically)
     begin_stop / raw_frames / end_stop    one stop, in its own file, renamed into place when complete
     finish()                              assembles run.h5 from the header and the stop files
 """
@@ -23,6 +25,8 @@ import numpy as np
 
 from . import stop_journal as journal
 from .disk_space import FILE_OVERHEAD_BYTES, free_bytes, megabytes
+from .plan import Plan
+from .plan_check import plan_change, resume_problems
 from .recording import (FORMAT, FORMAT_VERSION, CameraCalibration, FrameSeries, check_format, jsonable,
                         software_version, utc_now)
 from .recording_errors import RecordingError
@@ -112,15 +116,18 @@ class RecordingWriter:
         p.parent.mkdir(parents=True, exist_ok=True)
 
     # -- experiment --------------------------------------------------------------------------
-    def start_experiment(self, *, protocol: str, params: dict[str, Any], camera: dict[str, Any],
-                         stage: dict[str, Any], calibration: CameraCalibration) -> None:
-        """Write the experiment's header (on resume, check that it is the same experiment)."""
+    def start_experiment(self, *, plan: Plan, camera: dict[str, Any], stage: dict[str, Any],
+                         calibration: CameraCalibration) -> str:
+        """Write the experiment's header. On resume, check that it is the same experiment, and when the plan
+        changes only stops not yet recorded, record the new plan; return that change in words ("" if none)."""
         if self.resume:
-            self._check_same(protocol, params, camera, stage, calibration)
-            return
+            change = self.resume_change(plan, camera, stage, calibration)
+            if change:
+                self._replace_plan(plan.params)
+            return change
         attrs = {
             "format": FORMAT, "format_version": FORMAT_VERSION, "software_version": software_version(),
-            "protocol": protocol, "protocol_params": json.dumps(jsonable(params)), "started_utc": utc_now(),
+            "protocol": plan.name, "protocol_params": json.dumps(jsonable(plan.params)), "started_utc": utc_now(),
             "camera_model": str(camera.get("model", "")), "camera_serial": str(camera.get("serial", "")),
             "camera": json.dumps(jsonable(camera)), "stage": json.dumps(jsonable(stage)),
         }
@@ -133,29 +140,53 @@ class RecordingWriter:
             f.flush()
             image = f.id.get_file_image()
         journal.write_bytes_durably(image, self.path)
+        return ""
 
-    def _check_same(self, protocol: str, params: dict[str, Any], camera: dict[str, Any], stage: dict[str, Any],
-                    calibration: CameraCalibration) -> None:
+    def resume_change(self, plan: Plan, camera: dict[str, Any], stage: dict[str, Any],
+                      calibration: CameraCalibration) -> str:
+        """Refuse (RecordingError naming every difference, file value against now) to resume with other devices
+        or a plan that changes recorded stops; return how the plan changes, in words ("" if it does not).
+        Writes nothing."""
         with h5py.File(self.path, "r") as f:
             a = dict(f.attrs)
             cam_attrs = dict(f["camera"].attrs) if "camera" in f else {}
-        diffs = []
-        if a.get("protocol") != protocol:
-            diffs.append(f"protocol {a.get('protocol')!r} in the file, {protocol!r} now")
         try:
             old_params = json.loads(a.get("protocol_params", "{}"))
             old_camera = json.loads(a.get("camera", "{}"))
             old_stage = json.loads(a.get("stage", "{}"))
         except (TypeError, ValueError):
             raise RecordingError(f"{self.path}: its header attributes are not valid JSON; write a new file") from None
-        diffs += _differences("plan", old_params, jsonable(params))
+        recorded = self.completed_stops()
+        diffs = resume_problems(str(a.get("protocol")), old_params, plan, recorded)
         old_cal = CameraCalibration(**{k: cam_attrs.get(k, getattr(calibration, k)) for k in vars(calibration)})
         diffs += _differences("camera", camera_identity(old_camera, old_cal), camera_identity(camera, calibration))
         diffs += _differences("stage", stage_identity(old_stage), stage_identity(stage))
         if diffs:
             raise RecordingError(f"{self.path} holds a different experiment ({'; '.join(diffs[:4])}"
-                                 f"{'; ...' if len(diffs) > 4 else ''}); resume it with the devices and plan that made it, "
-                                 "or write a new file")
+                                 f"{'; ...' if len(diffs) > 4 else ''}); resume it with the devices and plan that made it "
+                                 "(of the plan, only stops not yet recorded may change), or write a new file")
+        return plan_change(old_params, plan.params)
+
+    def _replace_plan(self, params: dict[str, Any]) -> None:
+        """Put the resumed run's plan in the header (a copy, renamed into place: the file is old or new, never
+        half), keeping the plans it replaces in `plan_history`."""
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.header")
+        try:
+            shutil.copyfile(self.path, tmp)
+            with h5py.File(tmp, "a") as f:
+                try:
+                    history = json.loads(f.attrs.get("plan_history", "[]"))
+                except (TypeError, ValueError):
+                    history = []
+                history = history if isinstance(history, list) else []
+                history.append({"protocol_params": json.loads(f.attrs.get("protocol_params", "{}")),
+                                "replaced_utc": utc_now()})
+                f.attrs["plan_history"] = json.dumps(history)
+                f.attrs["protocol_params"] = json.dumps(jsonable(params))
+            journal.commit(tmp, self.path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
 
     # -- stops -----------------------------------------------------------------------------
     def completed_stops(self) -> set[str]:
@@ -259,8 +290,10 @@ class RecordingWriter:
         files = journal.completed_stop_files(self.path)
         if not files:
             with h5py.File(self.path, "r") as f:
-                if "ended_utc" in f.attrs:
-                    return
+                complete = "ended_utc" in f.attrs
+            if complete:  # a kill inside the last clean-up can leave the folder with no stop in it
+                shutil.rmtree(journal.journal_dir(self.path), ignore_errors=True)
+                return
         need, free = self.assembly_bytes(), free_bytes(self.path.parent)
         if need > free:
             raise RecordingError(f"disk full: assembling {self.path} needs about {megabytes(need)} and "

@@ -23,8 +23,9 @@ from drivers.image_regions import center_box
 from drivers.stage import Stage
 
 from .plan import Capture, Configure, Home, Move, Plan, Settle
-from .disk_space import free_bytes, is_disk_full, megabytes, stop_bytes
+from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
+from .plan_check import RigLimits, disk_need_bytes, plan_problems, stop_recipes
 from .recording import CameraCalibration, FrameSeries, RecordingError
 from .recording_writer import RecordingWriter
 from .stop_journal import journal_dir
@@ -38,6 +39,15 @@ MAX_REFUSED_FRACTION = 0.05
 
 class RunError(RuntimeError):
     """The run stopped; the message says why, what was saved and how to resume."""
+
+
+class PlanRefused(RunError):
+    """The plan cannot finish on this rig, found before homing or recording (`plan_check`); `problems` holds
+    one line per problem."""
+
+    def __init__(self, message: str, problems: list[str]):
+        super().__init__(message)
+        self.problems = problems
 
 
 @dataclass
@@ -119,6 +129,9 @@ class Runner:
         labels = [c.stop for c in captures]
         if len(set(labels)) != len(labels):
             raise RunError(f"plan {plan.name!r} has duplicate stop labels; give each capture a unique label")
+        problems = plan_problems(plan, output=path)  # what is known before any device is opened
+        if problems:
+            raise PlanRefused(self._refused(problems, path, resume, set()), problems)
         try:
             writer = RecordingWriter(path, resume=resume)
         except (RecordingError, OSError) as e:
@@ -130,17 +143,18 @@ class Runner:
             with writer, self.camera, self.stage:
                 info = self.camera.info()
                 i = info.intrinsics
+                calibration = CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, info.baseline_m, info.depth_scale_m)
+                camera, stage = self.camera.describe(), self.stage.describe()
+                done = writer.completed_stops()
                 try:
-                    writer.start_experiment(
-                        protocol=plan.name,
-                        params=plan.params,
-                        camera=self.camera.describe(),
-                        stage=self.stage.describe(),
-                        calibration=CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, info.baseline_m, info.depth_scale_m),
-                    )
+                    if resume:
+                        writer.resume_change(plan, camera, stage, calibration)  # a different experiment: say so first
+                    self._check_plan(plan, path, resume, done, (i.height, i.width))
+                    change = writer.start_experiment(plan=plan, camera=camera, stage=stage, calibration=calibration)
                 except RecordingError as e:
                     raise RunError(str(e)) from None
-                done = writer.completed_stops()
+                if change:
+                    self.progress(ProgressEvent("message", text=f"resuming with a changed plan: {change}"))
                 pending_move: float | None = None
                 pending_settle = 0.0
                 requested: CameraSettings | None = None
@@ -203,6 +217,28 @@ class Runner:
         self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
         return RunResult(path, recorded, skipped)
 
+    def _check_plan(self, plan: Plan, path: Path, resume: bool, done: set[str], shape: tuple[int, int]) -> None:
+        """The whole plan against the opened devices, before homing or writing anything (`plan_check`)."""
+        limits = RigLimits(self.stage.limits_m, self.stage.name, shape)
+        problems = plan_problems(plan, limits, output=path, resume=resume, recorded=done)
+        if problems:
+            raise PlanRefused(self._refused(problems, path, resume, done), problems)
+        todo = {k: r for k, r in stop_recipes(plan).items() if k not in done}
+        lo, hi = limits.travel_m
+        travel = f"within {self.stage.name}'s travel {lo:.3f}-{hi:.3f} m" if math.isfinite(hi) else "(no stage limits)"
+        self.progress(ProgressEvent("message", text=f"plan checked: {len(todo)} stops to record {travel}; "
+                                                    f"up to {size_text(disk_need_bytes(todo, shape, path, resume=resume))} "
+                                                    f"of {size_text(free_bytes(path.parent))} free on disk"))
+
+    @staticmethod
+    def _refused(problems: list[str], path: Path, resume: bool, done: set[str]) -> str:
+        """A plan that cannot finish: every problem, and that nothing was touched."""
+        head = f"the plan cannot finish on this rig: {'; '.join(problems)}"
+        if not resume:
+            return f"{head}; nothing was recorded"
+        kept = f" (it keeps {len(done)} recorded stop{'s' * (len(done) != 1)}, which must stay in the plan)" if done else ""
+        return f"{head}; {path} is unchanged{kept}; correct the plan and resume again"
+
     @staticmethod
     def _saved_message(path: Path, recorded: list[str], skipped: list[str], n: int, created: bool) -> str:
         """Say what is kept. A new file with no completed stop is removed, so a re-run starts clean."""
@@ -257,8 +293,8 @@ class Runner:
                                     text=f"at {measured_m:.3f} m" if not math.isnan(measured_m) else ""))
         need = stop_bytes(shape, step.n_frames, keep_raw=step.keep_raw, ir=step.ir, ambient=step.ambient_frames > 0)
         free = free_bytes(writer.path.parent)
-        if need + _RESERVE_BYTES > free:
-            raise _DiskFull(index, need + _RESERVE_BYTES - free)
+        if need + RESERVE_BYTES > free:
+            raise _DiskFull(index, need + RESERVE_BYTES - free)
         g = writer.begin_stop(step.stop, index=index, commanded_position_m=commanded_m, measured_position_m=measured_m,
                               settings_requested=requested.to_dict(), settings_read_back=self.camera.read_settings().to_dict(),
                               keep_raw=step.keep_raw)
@@ -339,10 +375,6 @@ class Runner:
 
 class _Aborted(Exception):
     pass
-
-
-#: free space kept on top of a stop's size (the assembly at the end needs its own check)
-_RESERVE_BYTES = 1024 * 1024
 
 
 class _DiskFull(Exception):

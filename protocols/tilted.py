@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any, Iterator
 
 from .capture_settings import CaptureSettings
-from .plan_values import number, whole
+from .plan_values import distance_m as check_distance, frames as check_frames, number
 from .plan import Configure, Home, Move, Plan, Settle, Step
 
 
@@ -21,9 +21,9 @@ def tilted(tilt_deg: float = 31.0, distance_m: float = 0.8, frames: int = 600, *
     `capture`: the capture settings by name (`protocols.capture_settings.CaptureSettings`).
     """
     settings = CaptureSettings.from_options("tilted", capture)
-    frames = whole("tilted", "frames", frames, 2, 1_000_000, "at least 2 frames are needed for a variance")
+    frames = check_frames("tilted", "frames", frames)
     tilt_deg = number("tilted", "tilt_deg", tilt_deg, 0.0, 75.0, "degrees (the wall's angle to the image plane)")
-    distance_m = number("tilted", "distance_m", distance_m, 0.05, 100.0, "m")
+    distance_m = check_distance("tilted", "distance_m", distance_m)
     params = dict(tilt_deg=tilt_deg, distance_m=distance_m, frames=frames, **settings.to_params())
 
     def steps() -> Iterator[Step]:
@@ -33,4 +33,4 @@ def tilted(tilt_deg: float = 31.0, distance_m: float = 0.8, frames: int = 600, *
         yield Settle(settings.settle_s)
         yield settings.capture("tilted", frames)
 
-    return Plan("tilted", params, steps)
+    return Plan("tilted", params, steps, stops_param="distance_m")

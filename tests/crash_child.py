@@ -1,6 +1,6 @@
 """A small simulated run that SIGKILLs itself at an exact instant (for tests/test_crash_safety.py).
 
-    python tests/crash_child.py OUT.h5 POINT N [--raw] [--resume]
+    python tests/crash_child.py OUT.h5 POINT N [--raw] [--resume] [--stops 0.5,1.0,...]
 
 POINT is a function the writer calls (wrapped here, in this test process only: nothing in rig
 knows about it) and N which call of it dies: the process kills itself just *before* the call
@@ -60,7 +60,8 @@ def main() -> None:
     out, point, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
     raw, resume = "--raw" in sys.argv, "--resume" in sys.argv
     devices = open_devices("fake:width=16,height=9,seed=5", "fake:")
-    plan = perpendicular(frames_per_stop=6, keep_raw=raw)
+    stops = {} if "--stops" not in sys.argv else {"stops_m": [float(z) for z in sys.argv[sys.argv.index("--stops") + 1].split(",")]}
+    plan = perpendicular(frames_per_stop=6, keep_raw=raw, **stops)
 
     def progress(e):
         if e.kind == "stop_done":

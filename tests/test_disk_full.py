@@ -1,6 +1,10 @@
 """A full disk, on a real small file system (a size-limited tmpfs: root can mount one; CI runs as root):
 one line, a non-zero exit, no traceback, no segfault, every finished stop kept, and --resume finishes
-once there is room. Without root, the same runs on a writer that fails with ENOSPC on cue."""
+once there is room. Without root, the same runs on a writer that fails with ENOSPC on cue.
+
+A run (or import) whose whole recording does not fit is refused before it starts (tests/test_plan_check.py),
+so the runs here start on a disk with room for all of it, and the disk fills while they run: after the
+third stop a ballast file takes all but a little of the free space, as another program filling the disk would."""
 
 from __future__ import annotations
 
@@ -35,36 +39,58 @@ def _resize(where: Path, size_kb: int) -> None:
 def small_disk(tmp_path):
     """(folder on a small file system, resize function) or (folder, None) where a tmpfs cannot be mounted."""
     where = tmp_path / "disk"
-    mounted = _mount(where, 2600)
+    mounted = _mount(where, 20_000)
     yield where, (lambda kb: _resize(where, kb)) if mounted else None
     if mounted:
         subprocess.run(["umount", "-l", str(where)])
 
 
-#: without root: the run in a process whose writes of stop files fail with ENOSPC after `budget` bytes
+#: the command in a process whose writes fail as on a full disk. "budget N" (without root): writes of stop files
+#: fail with ENOSPC after N bytes. "ballast N:LEAVE" (on a real small disk): once N stop files are written, a
+#: file named ballast beside the output takes all the free space but LEAVE bytes.
 INJECTED = textwrap.dedent('''
-    import errno, sys
+    import errno, shutil, sys
     sys.path.insert(0, {root!r})
     from protocols import disk_space, stop_journal
-    budget = [int(sys.argv[1])]
-    real = stop_journal.write_bytes_durably
-    def write(data, final):
-        if len(data) > budget[0]:
-            raise OSError(errno.ENOSPC, "No space left on device", str(final))
-        budget[0] -= len(data)
-        return real(data, final)
-    stop_journal.write_bytes_durably = write
-    disk_space.free_bytes = lambda path: 10**12  # the check before each stop is passed; the write fails
+    mode, arg = sys.argv[1], sys.argv[2]
+    real_write, real_commit = stop_journal.write_bytes_durably, stop_journal.commit
+    if mode == "budget":
+        budget = [int(arg)]
+        def write(data, final):
+            if len(data) > budget[0]:
+                raise OSError(errno.ENOSPC, "No space left on device", str(final))
+            budget[0] -= len(data)
+            return real_write(data, final)
+        stop_journal.write_bytes_durably = write
+        disk_space.free_bytes = lambda path: 10**12  # the checks before the run and each stop pass; the write fails
+    else:
+        n, leave = (int(x) for x in arg.split(":"))
+        stops = [0]
+        def fill_after(final):
+            if final.parent.name.endswith(".stops"):
+                stops[0] += 1
+                if stops[0] == n:
+                    free = shutil.disk_usage(final.parent).free
+                    with open(final.parent.parent / "ballast", "wb") as f:
+                        f.write(bytes(max(0, free - leave)))
+        def write(data, final):
+            real_write(data, final)
+            fill_after(final)
+        def commit(tmp, final):
+            real_commit(tmp, final)
+            fill_after(final)
+        stop_journal.write_bytes_durably, stop_journal.commit = write, commit
     from rig.cli import main
-    sys.exit(main(sys.argv[2:]))
+    sys.exit(main(sys.argv[3:]))
 ''')
 
 
-def rig(*args: str, budget: int | None = None) -> subprocess.CompletedProcess:
-    if budget is None:
+def rig(*args: str, budget: int | None = None, ballast: str | None = None) -> subprocess.CompletedProcess:
+    if budget is None and ballast is None:
         cmd = [sys.executable, "-c", "import sys; from rig.cli import main; sys.exit(main(sys.argv[1:]))", *args]
     else:
-        cmd = [sys.executable, "-c", INJECTED.format(root=str(ROOT)), str(budget), *args]
+        mode = ["budget", str(budget)] if budget is not None else ["ballast", ballast]
+        cmd = [sys.executable, "-c", INJECTED.format(root=str(ROOT)), *mode, *args]
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
 
 
@@ -72,7 +98,7 @@ def test_a_run_that_fills_the_disk_stops_with_one_line_and_resumes(small_disk):
     where, resize = small_disk
     out = where / "run.h5"
     args = ["run", "--protocol", "perpendicular", "--camera", CAMERA, "--stage", "fake:", "--frames", "20", "-o", str(out)]
-    p = rig(*args, budget=None if resize else 1_200_000)
+    p = rig(*args, budget=1_200_000) if resize is None else rig(*args, ballast="3:1200000")
     assert p.returncode == 2, (p.returncode, p.stderr)  # not 139 (a segfault), not a traceback
     assert "Traceback" not in p.stderr, p.stderr
     msg = p.stderr.strip().splitlines()[-1]  # progress lines above it, then the one line that says what happened
@@ -84,7 +110,7 @@ def test_a_run_that_fills_the_disk_stops_with_one_line_and_resumes(small_disk):
         for label in rec.stop_labels():
             rec.stop(label)
     if resize:
-        resize(40_000)
+        (where / "ballast").unlink()  # room again
     p = rig(*args, "--resume")
     assert p.returncode == 0, p.stderr
     with Recording(out) as rec:
@@ -101,9 +127,11 @@ def test_an_import_that_fills_the_disk_leaves_nothing(small_disk, tmp_path):
     record_perpendicular(live, seed=3, width=106, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0, 2.5, 3.0], keep_raw=True)
     src = dump(live, tmp_path / "frames")
     out = where / "wall.h5"
-    if resize:
-        resize(1900)
-    p = rig("import", str(src), "-o", str(out), budget=None if resize else 600_000)
+    if resize is None:
+        p = rig("import", str(src), "-o", str(out), budget=600_000)
+    else:
+        p = rig("import", str(src), "-o", str(out), ballast="3:600000")
+        (where / "ballast").unlink()
     assert p.returncode == 2, (p.returncode, p.stderr)
     assert "Traceback" not in p.stderr and "disk full at stop" in p.stderr.strip().splitlines()[-1], p.stderr
     assert "free about" in p.stderr and "stop 1 of" not in p.stderr  # it stopped part-way, not before starting

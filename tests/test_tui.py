@@ -124,7 +124,8 @@ def test_pause_abort_keeps_completed_stops_then_resume_finishes(tmp_path, monkey
                 assert rec.stop_labels() == ["0.500m"]
             await pilot.press("r")  # a new run refuses to overwrite the file...
             await until(pilot, lambda: app.run_pane.state.status == "failed", "the refusal")
-            assert "already exists" in app.run_pane.status.text and "press u to resume" not in app.run_pane.status.text
+            assert "already exists; choose another output file or press u to resume it" in app.run_pane.status.text
+            assert "--resume" not in app.run_pane.status.text  # the keys of this screen, not the flags of rig run
             await pilot.press("u")  # ...resume records the rest
             await until(pilot, lambda: app.run_pane.state.status == "done", "the resumed run")
             assert (app.run_pane.state.recorded, app.run_pane.state.skipped) == (2, 1)
@@ -345,6 +346,9 @@ class CannedResults(ResultsSession):
         return rows + [CandidateRow(e, v, False, False) for e, v in (
             ("quantization", -0.3), ("ambient", 0.0), ("noise_floor", 8.2), ("censoring", 9.0), ("read_noise", 9.2),
             ("drift", 18.1), ("outliers", 18.4), ("incidence", 668.8))]
+
+    def shape(self):
+        return None  # everything explained: no shape to draw
 
     def summary(self) -> str:
         return ("Nothing significant is missing from active+slant_range: no effect lowers BIC by more than 10; "

@@ -1,8 +1,11 @@
 """`rig tui`: the lab operator's terminal UI over the runner, the recording and the analysis.
 
-Four screens as tabs (keys 1-4 or F1-F4): Devices, Experiment, Run, Results. Every action
-has a key in the footer; the footer shows only the actions of the screen in front, and hides
-single-letter keys while a text field has the focus (esc leaves the field).
+Four screens as tabs (keys 1-4, or F1-F4 which work everywhere): Devices, Experiment, Run, Results.
+Every action has a key in the footer; the footer shows only the actions of the screen in front, and
+hides single-letter keys while a form field has the focus (esc leaves the field). Digits typed while a
+form field has the focus never switch screens. Switching to a screen always puts the focus in the same
+place (`_focus_for`), and the tab bar takes no focus, so a number of Tab presses always reaches the same
+field.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from pathlib import Path
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.css.query import NoMatches
-from textual.widgets import Footer, Input, Select, TabbedContent, TabPane
+from textual.widgets import Checkbox, Footer, Input, Select, TabbedContent, TabPane, Tabs
 
 from .devices_pane import DevicesPane
 from .experiment_pane import ExperimentPane
@@ -31,22 +34,31 @@ ACTION_TAB = {
     "start_run": "run", "pause": "run", "unpause": "run", "abort": "run", "resume_run": "run",
     "open_recording": "results", "refit": "results",
 }
-#: actions on plain letter keys: hidden while a text field has the focus (the field takes the letter)
+#: actions on plain letter and digit keys: off while a form field has the focus (the field takes the key)
 LETTER_ACTIONS = {"connect", "disconnect", "test_capture", "home", "start_run", "pause", "unpause", "abort",
-                  "resume_run", "open_recording", "refit"}
+                  "resume_run", "open_recording", "refit", "digit_tab"}
+#: the widgets of a form: while one has the focus, keys are for it
+FORM_FIELDS = (Input, Select, Checkbox)
 
 
 class RigApp(App):
     """The operator's UI. `camera`/`stage` are device strings; `recording` opens on Results."""
 
-    CSS_PATH = "rig.tcss"
+    CSS_PATH = Path(__file__).with_name("rig.tcss")  # absolute: subclasses elsewhere find it too
     TITLE = "rig"
     ENABLE_COMMAND_PALETTE = False
+    #: the focus goes where `_focus_for` puts it: Textual's first focusable widget would be a field on a hidden
+    #: screen, and focusing it would switch to that screen
+    AUTO_FOCUS = None
     BINDINGS = [
-        Binding("1,f1", "show_tab('devices')", "Devices", show=False),
-        Binding("2,f2", "show_tab('experiment')", "Experiment", show=False),
-        Binding("3,f3", "show_tab('run')", "Run", show=False),
-        Binding("4,f4", "show_tab('results')", "Results", show=False),
+        Binding("f1", "show_tab('devices')", "Devices", show=False),
+        Binding("f2", "show_tab('experiment')", "Experiment", show=False),
+        Binding("f3", "show_tab('run')", "Run", show=False),
+        Binding("f4", "show_tab('results')", "Results", show=False),
+        Binding("1", "digit_tab('devices')", "Devices", show=False),
+        Binding("2", "digit_tab('experiment')", "Experiment", show=False),
+        Binding("3", "digit_tab('run')", "Run", show=False),
+        Binding("4", "digit_tab('results')", "Results", show=False),
         Binding("c", "connect", "Connect"),
         Binding("x", "disconnect", "Disconnect"),
         Binding("t", "test_capture", "Test capture"),
@@ -75,20 +87,23 @@ class RigApp(App):
         self._experiment_file = experiment_file
         self._connect = connect
         self._clock = clock
+        self.crash: BaseException | None = None  # what ended the app, if something did (`launch.run_app`)
 
     def compose(self) -> ComposeResult:
         with TabbedContent(initial="results" if self._recording else "devices", id="tabs"):
             with TabPane("1 Devices", id="devices"):
                 yield DevicesPane(self._camera, self._stage, id="devices-pane")
             with TabPane("2 Experiment", id="experiment"):
-                yield ExperimentPane(self._experiment, self._experiment_file, id="experiment-pane")
+                yield ExperimentPane(self._experiment, self._experiment_file, id="experiment-pane",
+                                     limits=lambda: self.devices.limits)
             with TabPane("3 Run", id="run"):
                 yield RunPane(self._clock, id="run-pane")
             with TabPane("4 Results", id="results"):
-                yield ResultsPane(self._recording or "", id="results-pane")
+                yield ResultsPane(self._recording or "", clock=self._clock, id="results-pane")
         yield Footer(compact=True, show_command_palette=False)
 
     def on_mount(self) -> None:
+        self.query_one(TabbedContent).query_one(Tabs).can_focus = False  # screens switch by key; Tab goes to fields
         if self._connect:
             self.devices.connect()
         if self._recording:
@@ -114,7 +129,11 @@ class RigApp(App):
 
     @property
     def tab(self) -> str:
-        return self.query_one(TabbedContent).active
+        """The screen in front ("" while the app is being taken down)."""
+        try:
+            return self.query_one(TabbedContent).active
+        except NoMatches:
+            return ""
 
     # -- which keys are live ----------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
@@ -124,7 +143,7 @@ class RigApp(App):
             return True
 
     def _check_action(self, action: str) -> bool | None:
-        typing = isinstance(self.focused, (Input, Select))
+        typing = isinstance(self.focused, FORM_FIELDS)
         if action == "leave_field":
             return typing
         if action in LETTER_ACTIONS and typing:
@@ -173,6 +192,9 @@ class RigApp(App):
     # -- actions ----------------------------------------------------------------------------
     def action_show_tab(self, tab: str) -> None:
         self.query_one(TabbedContent).active = tab
+
+    def action_digit_tab(self, tab: str) -> None:
+        self.action_show_tab(tab)
 
     def action_leave_field(self) -> None:
         self.set_focus(None)
@@ -256,6 +278,21 @@ class RigApp(App):
             self.devices.released("the run opens the devices itself")
         self.run_pane.start(s, self.devices.camera_string, self.devices.stage_string, self.devices.session, resume=resume)
         return True
+
+    def on_devices_pane_limits_changed(self, m: DevicesPane.LimitsChanged) -> None:
+        self.experiment.recheck()
+
+    def _handle_exception(self, error: Exception) -> None:
+        """Remember what ended the app, so that `rig tui` can say it and exit non-zero (Textual prints the
+        traceback and ends the app)."""
+        if self.crash is None:
+            self.crash = error
+        try:
+            if self.run_pane.running:
+                self.run_pane.live.abort()  # completed stops stay in the file; the run's thread ends at the next frame
+        except Exception:  # noqa: BLE001 - no screens (yet, or any more): no run to stop
+            pass
+        super()._handle_exception(error)
 
     def on_run_pane_finished(self, m: RunPane.Finished) -> None:
         if m.state.status in ("done", "aborted") and Path(m.state.output).exists() and not self.results.busy:

@@ -11,6 +11,8 @@ from textual.widgets import Input, Label
 from drivers.camera import CameraSettings
 from drivers.errors import DeviceError
 
+from protocols.plan_check import RigLimits
+
 from .devices_service import DeviceReport, DeviceSession, TestCapture, describe_error
 from .widgets import KeyValues, StatusLine
 
@@ -26,11 +28,22 @@ class DevicesPane(Vertical):
             super().__init__()
             self.what, self.report, self.capture, self.error = what, report, capture, error
 
+    class LimitsChanged(Message):
+        """What the devices allow (travel, image size) became known or unknown: the experiment form rechecks."""
+
     def __init__(self, camera: str, stage: str, **kw) -> None:
         super().__init__(**kw)
         self.session = DeviceSession()
         self._camera, self._stage = camera, stage
         self.busy = False
+        self._limits: tuple[tuple[str, str], RigLimits] | None = None
+
+    @property
+    def limits(self) -> RigLimits | None:
+        """The travel and image size of the devices last connected, while their strings are unchanged."""
+        if self._limits is None or self._limits[0] != (self.camera_string, self.stage_string):
+            return None
+        return self._limits[1]
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
@@ -106,6 +119,8 @@ class DevicesPane(Vertical):
                 self.post_message(self.Done(what, report=self.session.report(), capture=capture))
         except DeviceError as e:
             self.post_message(self.Done(what, error=describe_error(e) if what == "connect" else str(e)))
+        except Exception as e:  # noqa: BLE001 - a driver's own bug is one line on the screen, not the end of the UI
+            self.post_message(self.Done(what, error=f"{what} failed: {type(e).__name__}: {e}"))
 
     def on_devices_pane_done(self, m: Done) -> None:
         self.busy = False
@@ -122,6 +137,9 @@ class DevicesPane(Vertical):
         if m.report is not None:
             self.query_one("#camera-info", KeyValues).show_rows(m.report.camera, "camera")
             self.query_one("#stage-info", KeyValues).show_rows(m.report.stage, "stage")
+            if m.report.limits is not None and m.what == "connect":
+                self._limits = ((self.session.camera_text, self.session.stage_text), m.report.limits)
+                self.post_message(self.LimitsChanged())
         if m.what == "connect":
             self.status.show(f"connected: {self.session.camera_text} and {self.session.stage_text}", "ok")
         elif m.what == "home":
@@ -137,6 +155,10 @@ class DevicesPane(Vertical):
     def on_input_submitted(self, event: Input.Submitted) -> None:
         event.stop()
         self.connect()
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        event.stop()
+        self.post_message(self.LimitsChanged())  # other devices: their travel is not known until connected
 
     def _clear(self) -> None:
         for wid in ("#camera-info", "#stage-info", "#capture-info"):

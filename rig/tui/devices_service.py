@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from drivers.camera import CameraSettings
 from drivers.errors import DeviceError
 from drivers.stage import NoStage, Stage
+from protocols.plan_check import RigLimits
 from rig.devices import DeviceSpec, RigDevices, open_devices
 
 from .centre import CentreStats
@@ -34,6 +35,7 @@ class DeviceReport:
 
     camera: list[tuple[str, str]] = field(default_factory=list)
     stage: list[tuple[str, str]] = field(default_factory=list)
+    limits: RigLimits | None = None  # the stage's travel and the camera's image, for the experiment form
 
 
 def homed(stage: Stage) -> bool | None:
@@ -110,7 +112,7 @@ class DeviceSession:
                 ("position", "not known (no stage)" if math.isnan(pos) else f"{pos:.4f} m"),
                 ("homed", "n/a" if h is None else ("yes" if h else "no: press h to home")),
                 ("travel", f"{lo:.2f}-{hi:.2f} m" if math.isfinite(hi) else "unlimited (no stage)")]
-        return DeviceReport(camera, rows)
+        return DeviceReport(camera, rows, RigLimits((lo, hi), stage.name, (i.height, i.width)))
 
     def test_capture(self, settings: CameraSettings, n_frames: int = 10) -> TestCapture:
         """Apply the experiment's settings and capture a few frames where the stage stands now."""

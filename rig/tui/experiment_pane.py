@@ -1,35 +1,43 @@
-"""Experiment: the protocol and its parameters, loaded from and saved to `rig run`'s TOML files."""
+"""Experiment: the protocol and its parameters, loaded from and saved to `rig run`'s TOML files.
+
+Every field is checked as it is typed, by the rules `rig run` applies (`form.field_problem`, which uses
+`protocols.plan_check`): values in range, stops within the stage's travel when the Devices screen knows it,
+the output writable, the disk big enough. The lines under the form say what the plan will do, or each
+reason it would be refused.
+"""
 
 from __future__ import annotations
+
+from typing import Callable
 
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Checkbox, Input, Label, Select
 
 from protocols.experiment_file import ExperimentFileError
+from protocols.plan_check import RigLimits
 
-from .form import ExperimentSettings, format_stops, parse_stops
+from .fields import CheckedField, RuleCheck
+from .form import FIELDS, STOPS_CHARACTERS, ExperimentSettings, field_problem, format_stops, parse_stops
 from .widgets import StatusLine
 
-FIELDS = (  # id, label, input type, which protocol shows it ("" = both)
-    ("stops", "Stops [m]", "text", "perpendicular"),
-    ("tilt", "Tilt [deg]", "number", "tilted"),
-    ("distance", "Distance [m]", "number", "tilted"),
-    ("frames", "Frames per stop", "integer", ""),
-    ("exposure", "Exposure [us]", "number", ""),
-    ("gain", "Gain", "number", ""),
-    ("output", "Output file", "text", ""),
-)
+#: what each field takes, in words (said when a character is refused)
+TAKES = {"stops": "distances in m: digits , . : only", "tilt": "a number", "distance": "a number in m",
+         "frames": "a whole number", "exposure": "a number in us", "gain": "a number"}
+#: at most this many problems are listed under the form
+MAX_LINES = 4
 
 
 class ExperimentPane(Vertical):
     """A form over `ExperimentSettings`; ctrl+l loads a TOML file, ctrl+s saves one."""
 
-    def __init__(self, settings: ExperimentSettings | None = None, toml_path: str = "experiment.toml", **kw) -> None:
+    def __init__(self, settings: ExperimentSettings | None = None, toml_path: str = "experiment.toml", *,
+                 limits: Callable[[], RigLimits | None] = lambda: None, **kw) -> None:
         super().__init__(**kw)
         self._initial = settings or ExperimentSettings()
         self._toml = toml_path
         self._extra: dict = {}
+        self._limits = limits
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
@@ -45,8 +53,9 @@ class ExperimentPane(Vertical):
         for wid, label, kind, protocol in FIELDS:
             with Horizontal(classes=f"field {protocol}".strip(), id=f"row-{wid}"):
                 yield Label(label, classes="label", markup=False)
-                yield Input(id=wid, type=kind, compact=True)
-        yield Label("", id="plan-line")
+                yield CheckedField(id=wid, type=kind, compact=True, validators=[RuleCheck(self._checker(wid))],
+                                   restrict=STOPS_CHARACTERS if wid == "stops" else None)
+        yield Label("", id="plan-line", markup=False)
         yield StatusLine("ctrl+l loads the experiment file, ctrl+s saves it, ctrl+r runs", id="experiment-status")
 
     def on_mount(self) -> None:
@@ -60,6 +69,10 @@ class ExperimentPane(Vertical):
     def toml_path(self) -> str:
         return self.query_one("#toml-path", Input).value.strip()
 
+    @property
+    def protocol(self) -> str:
+        return str(self.query_one("#protocol", Select).value)
+
     def show_settings(self, s: ExperimentSettings) -> None:
         self._extra = dict(s.extra)
         self.query_one("#protocol", Select).value = s.protocol
@@ -67,43 +80,53 @@ class ExperimentPane(Vertical):
         values = {"stops": format_stops(s.stops_m), "tilt": f"{s.tilt_deg:g}", "distance": f"{s.distance_m:g}",
                   "frames": str(s.frames), "exposure": f"{s.exposure_us:g}", "gain": f"{s.gain:g}", "output": s.output}
         for wid, v in values.items():
-            self.query_one(f"#{wid}", Input).value = v
+            self.query_one(f"#{wid}", CheckedField).set_text(v)
         self._show_protocol(s.protocol)
 
     def settings(self) -> ExperimentSettings:
-        """The form as settings; raises ExperimentFileError naming the field that is wrong."""
-        def value(wid: str, typ, what: str):
-            text = self.query_one(f"#{wid}", Input).value.strip()
-            try:
-                return typ(text)
-            except ValueError:
-                raise ExperimentFileError(f"{what}: {text!r} is not a {'whole ' if typ is int else ''}number") from None
-
-        protocol = str(self.query_one("#protocol", Select).value)
-        s = ExperimentSettings(protocol=protocol, projector_on=self.query_one("#projector", Checkbox).value,
+        """The form as settings; raises ExperimentFileError naming the first field that is wrong."""
+        problems = self.field_problems()
+        if problems:
+            raise ExperimentFileError(problems[0])
+        fields = {wid: self.query_one(f"#{wid}", CheckedField).value.strip() for wid, _, _, _ in FIELDS}
+        s = ExperimentSettings(protocol=self.protocol, projector_on=self.query_one("#projector", Checkbox).value,
                                extra=dict(self._extra))
-        s.frames = value("frames", int, "frames per stop")
-        s.exposure_us = value("exposure", float, "exposure")
-        s.gain = value("gain", float, "gain")
-        if protocol == "tilted":
-            s.tilt_deg = value("tilt", float, "tilt")
-            s.distance_m = value("distance", float, "distance")
+        s.frames, s.exposure_us, s.gain = int(fields["frames"]), float(fields["exposure"]), float(fields["gain"])
+        if s.protocol == "tilted":
+            s.tilt_deg, s.distance_m = float(fields["tilt"]), float(fields["distance"])
         else:
-            s.stops_m = parse_stops(self.query_one("#stops", Input).value)
-        s.output = self.query_one("#output", Input).value.strip()
-        if not s.output:
-            raise ExperimentFileError("output file: give a file name, e.g. run.h5")
+            s.stops_m = parse_stops(fields["stops"])
+        s.output = fields["output"]
         return s
+
+    def field_problems(self) -> list[str]:
+        """Each shown field's problem: refused characters first, then values the rules refuse."""
+        refusals, values = [], []
+        for wid, label, _, only in FIELDS:
+            if only and only != self.protocol:
+                continue
+            f = self.query_one(f"#{wid}", CheckedField)
+            if f.refused:
+                refusals.append(f.refusal(label, f"it takes {TAKES.get(wid, 'text')}"))
+            problem = field_problem(self.protocol, wid, f.value, self._limits())
+            if problem:
+                values.append(problem)
+        return refusals + values
+
+    def problems(self) -> list[str]:
+        """Everything that stops the plan from running on this rig, one line each."""
+        problems = self.field_problems()
+        if problems:
+            return problems
+        return self.settings().problems(self._limits())
 
     def checked_settings(self) -> ExperimentSettings | None:
         """The settings if `rig run` would accept them, else None with the reason on the status line."""
-        try:
-            s = self.settings()
-            s.plan()
-        except ExperimentFileError as e:
-            self.status.show(str(e), "error")
+        problems = self.problems()
+        if problems:
+            self.status.show(problems[0], "error")
             return None
-        return s
+        return self.settings()
 
     def load(self) -> tuple[str, str] | None:
         """Load the experiment file; return its camera and stage strings."""
@@ -117,8 +140,10 @@ class ExperimentPane(Vertical):
         return camera, stage
 
     def save(self, camera: str, stage: str) -> bool:
-        s = self.checked_settings()
-        if s is None:
+        try:
+            s = self.settings()
+        except ExperimentFileError as e:
+            self.status.show(str(e), "error")
             return False
         try:
             path = s.save(self.toml_path, camera, stage)
@@ -128,15 +153,29 @@ class ExperimentPane(Vertical):
         self.status.show(f"saved {path}; rig run {path} runs it", "ok")
         return True
 
+    def recheck(self) -> None:
+        """Check every field and the plan again (the devices, and so the travel, may have changed)."""
+        for wid, _, _, _ in FIELDS:
+            f = self.query_one(f"#{wid}", CheckedField)
+            f.validate(f.value)
+        self._update_plan_line()
+
     # -- keeping the form honest ------------------------------------------------------------
+    def _checker(self, wid: str) -> Callable[[str], str | None]:
+        return lambda text: field_problem(self.protocol, wid, text, self._limits())
+
     def on_select_changed(self, event: Select.Changed) -> None:
         self._show_protocol(str(event.value))
-        self._update_plan_line()
+        self.recheck()
 
     def on_input_changed(self, event: Input.Changed) -> None:
         self._update_plan_line()
 
+    def on_checked_field_refused(self, event: CheckedField.Refused) -> None:
+        self._update_plan_line()
+
     def on_checkbox_changed(self, event: Checkbox.Changed) -> None:
+        event.checkbox.label = "on" if event.value else "off"  # the state in words, not by colour alone
         self._update_plan_line()
 
     def _show_protocol(self, protocol: str) -> None:
@@ -147,12 +186,15 @@ class ExperimentPane(Vertical):
 
     def _update_plan_line(self) -> None:
         line = self.query_one("#plan-line", Label)
-        try:
-            s = self.settings()
-            s.plan()
-        except ExperimentFileError as e:
-            line.update(f"! {e}")
+        problems = self.problems()
+        if problems:
+            more = len(problems) - MAX_LINES
+            line.update("\n".join(f"! {p}" for p in problems[:MAX_LINES]) + (f"\n! ... {more} more" if more > 0 else ""))
             line.set_class(True, "-error")
             return
-        line.update(s.describe())
+        s, limits = self.settings(), self._limits()
+        travel = "" if limits is not None and limits.travel_m is not None else \
+            "; stage travel not checked: connect on screen 1 (c)"
+        disk = s.disk_text(limits)
+        line.update(s.describe() + (f"; {disk}" if disk else "") + travel)
         line.set_class(False, "-error")

@@ -10,9 +10,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from protocols.disk_space import free_bytes, size_text
 from protocols.experiment_file import ExperimentFileError, build_plan, experiment_text, load_experiment, save_experiment
-from protocols.perpendicular import DEFAULT_STOPS_M
+from protocols.perpendicular import DEFAULT_STOPS_M, perpendicular
 from protocols.plan import Plan
+from protocols.plan_check import RigLimits, disk_need_bytes, output_problems, plan_problems, stop_recipes, value_problem
 
 DEFAULT_CAMERA = "fake:width=106,depth_unit_mm=0.05"
 DEFAULT_STAGE = "fake:"
@@ -22,6 +24,59 @@ FORM_PARAMS = {
     "perpendicular": ("stops_m", "frames_per_stop", "projector_on", "exposure_us", "gain"),
     "tilted": ("tilt_deg", "distance_m", "frames", "projector_on", "exposure_us", "gain"),
 }
+
+
+FIELDS = (  # id, label, input type, which protocol shows it ("" = both)
+    ("stops", "Stops [m]", "text", "perpendicular"),
+    ("tilt", "Tilt [deg]", "number", "tilted"),
+    ("distance", "Distance [m]", "number", "tilted"),
+    ("frames", "Frames per stop", "integer", ""),
+    ("exposure", "Exposure [us]", "number", ""),
+    ("gain", "Gain", "number", ""),
+    ("output", "Output file", "text", ""),
+)
+LABELS = {wid: label for wid, label, _, _ in FIELDS}
+#: what a field's characters may be (number fields: Textual's own rule for its type)
+STOPS_CHARACTERS = r"[0-9.,:;eE+\- ]*"
+#: the protocol parameter each number field sets
+NUMBER_PARAMS = {"tilt": "tilt_deg", "distance": "distance_m", "exposure": "exposure_us", "gain": "gain"}
+
+
+def field_problem(protocol: str, field: str, text: str, limits: RigLimits | None = None) -> str | None:
+    """What is wrong with one field's text, by the rules `rig run` applies (`protocols.plan_check`), or None.
+    Stops are checked against the stage's travel when `limits` knows it."""
+    label, text = LABELS[field], text.strip()
+    only = next(p for wid, _, _, p in FIELDS if wid == field)
+    if only and only != protocol:
+        return None
+    if field == "output":
+        problems = output_problems(Path(text)) if text else ["give a file name, e.g. run.h5"]
+        return f"{label}: {problems[0]}" if problems else None
+    if field == "stops":
+        try:
+            stops = parse_stops(text)
+        except ExperimentFileError as e:
+            return f"{label}: {e}"
+        problem = value_problem(protocol, "stops_m", stops)
+        if problem is None and limits is not None and limits.travel_m is not None:
+            problem = next(iter(plan_problems(perpendicular(stops_m=stops), limits)), None)
+        return None if problem is None else f"{label}: {_unprefixed(problem, protocol)}"
+    whole = field == "frames"
+    try:
+        value = int(text) if whole else float(text)
+    except ValueError:
+        return f"{label}: {text!r} is not a {'whole ' if whole else ''}number" if text else f"{label}: give a number"
+    param = ("frames" if protocol == "tilted" else "frames_per_stop") if whole else NUMBER_PARAMS[field]
+    problem = value_problem(protocol, param, value)
+    return None if problem is None else f"{label}: {_unprefixed(problem, protocol)}"
+
+
+def _unprefixed(problem: str, protocol: str) -> str:
+    """A protocol's message without the names the field's label already gives."""
+    for prefix in (f"{protocol}: ", "capture settings: ", "stops_m: "):
+        if problem.startswith(prefix):
+            problem = problem[len(prefix):]
+    return problem
 
 
 @dataclass
@@ -51,6 +106,23 @@ class ExperimentSettings:
     def plan(self) -> Plan:
         """The plan; raises ExperimentFileError with a one-line message if a value is refused."""
         return build_plan(self.protocol, self.params())
+
+    def problems(self, limits: RigLimits | None = None) -> list[str]:
+        """Why the plan cannot finish on the rig `limits` describes (travel, output, disk); none: it can."""
+        try:
+            plan = self.plan()
+        except ExperimentFileError as e:
+            return [str(e)]
+        out = Path(self.output)
+        return plan_problems(plan, limits or RigLimits(), output=out, resume=out.exists())
+
+    def disk_text(self, limits: RigLimits | None) -> str:
+        """How much disk the run takes at most, when the camera's image size is known ("" if not)."""
+        if limits is None or limits.image_shape is None:
+            return ""
+        out = Path(self.output)
+        need = disk_need_bytes(stop_recipes(self.plan()), limits.image_shape, out, resume=out.exists())
+        return f"up to {size_text(need)} on disk, {size_text(free_bytes(out.parent))} free"
 
     def device_geometry(self) -> dict[str, float]:
         """What `open_devices` needs to place a simulated wall for this protocol."""

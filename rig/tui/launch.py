@@ -38,5 +38,18 @@ def run(args: argparse.Namespace) -> int:
         camera, stage = args.camera or file_camera, args.stage or file_stage
     app = RigApp(camera, stage, recording=args.recording, experiment=settings,
                  experiment_file=args.experiment or "experiment.toml", connect=not args.no_connect)
-    app.run()
+    return run_app(app)
+
+
+def run_app(app, **run_options) -> int:
+    """Run the app until it ends: 0 when the operator quits; when something unexpected ended it, 1, and one
+    line on stderr saying what (under the traceback Textual prints)."""
+    app.run(**run_options)
+    code = app.return_code or 0
+    if code or app.crash is not None:
+        e = app.crash
+        what = f"{type(e).__name__}: {e}" if e is not None else f"exit status {code}"
+        print(f"rig tui: error: the UI stopped on an unexpected error ({what}); the traceback above says where; "
+              "completed stops of a run are kept (rig run ... --resume records the rest)", file=sys.stderr)
+        return code or 1
     return 0

@@ -184,10 +184,11 @@ class LiveRun:
             runner = Runner(self._tap, devices.stage, progress=self._event, sleep=devices.sleep, control=self.control)
             result = runner.run(plan, Path(settings.output), resume=resume)
         except (RunError, DeviceError, ExperimentFileError, RecordingError, OSError) as e:
-            text = str(e)
-            if "--resume" in text:
-                text = text.replace("re-run the same command with --resume", "press u to resume")
-            self._finish("failed", text)
+            self._finish("failed", in_keys(str(e)))
+            return None
+        except Exception as e:  # noqa: BLE001 - a device's or the runner's own bug: one line, the UI goes on
+            self._finish("failed", f"the run stopped on an unexpected error ({type(e).__name__}: {e}); completed "
+                                   "stops are kept; press u to resume")
             return None
         with self._lock:
             self.state.recorded, self.state.skipped = len(result.recorded), len(result.skipped)
@@ -263,6 +264,24 @@ class LiveRun:
 
     def _publish(self) -> None:
         self.on_update(self.snapshot())
+
+
+#: what the command line tells the user to do, and the key that does it here (Run screen: r runs, u resumes)
+CLI_TO_KEYS = (
+    ("re-run the same command with --resume", "press u to resume"),
+    ("rerun with --resume", "press u to resume"),
+    ("pass --resume to continue it", "press u to resume it"),
+    ("run without --resume", "press r to run it"),
+    ("resume again", "press u to resume"),
+    ("rig run ... --resume records the rest", "press u on the Run screen records the rest"),
+)
+
+
+def in_keys(text: str) -> str:
+    """A message of the runner or the recording, with the keys of the Run screen for the flags of `rig run`."""
+    for cli, keys in CLI_TO_KEYS:
+        text = text.replace(cli, keys)
+    return text
 
 
 def format_duration(seconds: float | None) -> str:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from textual import work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
@@ -10,7 +12,9 @@ from textual.widgets import Input, Label, Static
 
 from protocols.recording import RecordingError
 
-from .results_service import ResultsSession
+from rig.models.progress import WorkProgress
+
+from .results_service import ProgressText, ResultsSession
 from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine
 
 
@@ -22,8 +26,16 @@ class ResultsPane(Vertical):
             super().__init__()
             self.what, self.error = what, error
 
-    def __init__(self, recording: str = "", **kw) -> None:
+    class Progress(Message):
+        """The diagnosis in the worker thread reached a step (posted from that thread)."""
+
+        def __init__(self, text: str) -> None:
+            super().__init__()
+            self.text = text
+
+    def __init__(self, recording: str = "", clock=time.monotonic, **kw) -> None:
         super().__init__(**kw)
+        self.clock = clock  # for the time left of a diagnosis
         self.session = ResultsSession()
         self._recording = recording
         self.busy = False
@@ -39,10 +51,11 @@ class ResultsPane(Vertical):
         yield StatusLine("o opens the recording", id="results-status")
         with Horizontal(classes="columns"):
             with Vertical(classes="left"):
-                yield FitTable(id="fit-table")
+                with VerticalScroll(id="fit-box"):
+                    yield FitTable(id="fit-table")
                 yield BinTable(id="bin-table")
             with Vertical(classes="right"):
-                yield Label("effect          dBIC (* significant)", id="effects-head", markup=False)
+                yield Label("[x] in next fit    dBIC (* signif.)", id="effects-head", markup=False)
                 yield EffectList(id="effects")
                 yield HeadlineChart(id="headline-chart")
                 yield ShapePlot(id="shape-plot")
@@ -70,7 +83,7 @@ class ResultsPane(Vertical):
             self.query_one("#recording-path", Input).focus()
             self.status.show("type the recording's path and press enter", "info")
             return
-        self._start("open", f"fitting and diagnosing {self.path} ...")
+        self._start("open", f"reading {self.path} ...")
 
     def refit(self) -> None:
         if self.session.diagnosis is None:
@@ -94,15 +107,30 @@ class ResultsPane(Vertical):
 
     @work(thread=True, exclusive=True, group="results")
     def _work(self, what: str, path: str, effects: list[str], effects_file: str) -> None:
+        words = ProgressText(f"diagnosing {path}" if what == "open" else "refitting", self.clock)
+
+        def progress(p: WorkProgress) -> None:
+            if not p.finished:
+                self.post_message(self.Progress(words.text(p)))
+
         try:
             if what == "open":
-                self.session.open(path, effects_file)
+                self.session.open(path, effects_file, progress=progress)
             else:
-                self.session.refit(effects)
+                self.session.refit(effects, progress=progress)
         except (RecordingError, ValueError, OSError) as e:
             self.post_message(self.Done(what, error=str(e)))
             return
+        except Exception as e:  # noqa: BLE001 - whatever the file holds, one line on the screen, and the UI goes on
+            self.post_message(self.Done(what, error=f"could not {'open' if what == 'open' else 'refit'} {path}: "
+                                                    f"{type(e).__name__}: {e}"))
+            return
         self.post_message(self.Done(what))
+
+
+    def on_results_pane_progress(self, m: Progress) -> None:
+        if self.busy:
+            self.status.show(m.text, "busy")
 
     def on_results_pane_done(self, m: Done) -> None:
         self.busy = False
@@ -110,6 +138,12 @@ class ResultsPane(Vertical):
         if m.error:
             self.status.show(m.error, "error")
             return
+        try:
+            self._show_results(m.what)
+        except Exception as e:  # noqa: BLE001 - a result the widgets cannot draw is said, not a crash
+            self.status.show(f"could not show the results of {self.path}: {type(e).__name__}: {e}", "error")
+
+    def _show_results(self, what: str) -> None:
         s = self.session
         self.query_one(FitTable).show_rows(s.fit_rows())
         self.query_one(BinTable).show_rows(s.bin_rows())
@@ -118,14 +152,17 @@ class ResultsPane(Vertical):
         self.query_one("#summary", Static).update(s.summary())
         self.query_one(ShapePlot).show_shape(s.shape())
         h = s.history[-1]
-        if m.what == "open":
+        if what == "open":
             name = s.path.name if s.path else ""
             text = f"{name}: headline error {h.headline.error_pct:.2f} % with {h.model}; space checks effects, f refits"
+            if s.notes:
+                text += "; note: " + "; ".join(s.notes)
         else:
             before = s.history[-2].headline.error_pct
             text = f"{h.change}: headline error {before:.2f} % -> {h.headline.error_pct:.2f} %"
         self.status.show(text, "ok")
-        self.query_one(EffectList).focus()
+        if all(node.display for node in self.ancestors_with_self if hasattr(node, "display")):
+            self.query_one(EffectList).focus()  # (not while another screen is in front: focusing would switch to this one)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         event.stop()

@@ -11,14 +11,20 @@ history keeps the headline error after each change so the screen can chart it.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from rig.diagnosis import Diagnosis, Headline, default_model, diagnose
 from rig.models import Catalogue, Model, ModelData
 from rig.models.empirical import COVARIATES, EmpiricalSigma
+from rig.models.progress import ProgressFn, WorkProgress
+from protocols.recording import Recording
+
+from .live import format_duration
 
 
 @dataclass
@@ -80,6 +86,7 @@ class ResultsSession:
         self.history: list[HistoryEntry] = []
         self.catalogue = Catalogue.default()
         self.effects_file = ""
+        self.notes: list[str] = []  # what to know about the recording itself (one stop, interrupted, ...)
 
     def load_effects(self, path: str) -> None:
         """Use the built-in effects and those of the file `path` (none: "")."""
@@ -88,13 +95,15 @@ class ResultsSession:
             catalogue = catalogue.with_file(path)  # EffectFileError (a ValueError) says what is wrong in one line
         self.catalogue, self.effects_file = catalogue, path
 
-    def open(self, path: str | Path, effects_file: str | None = None) -> Diagnosis:
+    def open(self, path: str | Path, effects_file: str | None = None, progress: ProgressFn | None = None) -> Diagnosis:
         path = Path(path)
         if effects_file is not None and effects_file != self.effects_file:
             self.load_effects(effects_file)
         data = ModelData.from_recording(path)
-        diag = diagnose(data, source=str(path), catalogue=self.catalogue)
-        self.path, self.data, self.diagnosis = path, data, diag
+        with Recording(path) as rec:
+            notes = rec.notes()
+        diag = diagnose(data, source=str(path), catalogue=self.catalogue, progress=progress)
+        self.path, self.data, self.diagnosis, self.notes = path, data, diag, notes
         self.base = default_model(data)
         self.history = [HistoryEntry(diag.model_fit.model.name, diag.model_fit.model.name, diag.model_headline)]
         return diag
@@ -104,7 +113,7 @@ class ResultsSession:
         """Effects in the current model."""
         return [] if self.diagnosis is None else [e.name for e in self.diagnosis.model_fit.model.effects]
 
-    def refit(self, effects: list[str]) -> Diagnosis:
+    def refit(self, effects: list[str], progress: ProgressFn | None = None) -> Diagnosis:
         """Fit the base model plus `effects` and diagnose what is still missing."""
         if self.data is None or self.base is None:
             raise ValueError("no recording is open; press o to open one")
@@ -114,7 +123,8 @@ class ResultsSession:
             raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(known)}")
         before = self.effects
         model = self.catalogue.parse("+".join([self.base.name, *effects]))
-        diag = diagnose(self.data, model, source=str(self.path), catalogue=self.catalogue, max_steps=0)
+        diag = diagnose(self.data, model, source=str(self.path), catalogue=self.catalogue, max_steps=0,
+                        progress=progress)
         self.diagnosis = diag
         added = [e for e in effects if e not in before]
         removed = [e for e in before if e not in effects]
@@ -177,3 +187,18 @@ class ResultsSession:
         m = np.exp(step.term.log_multiplier(x, step.fit.values))
         title = f"not explained: sigma x shape over {step.covariate} ({step.headline.error_pct:.2f} % after)"
         return ShapeCurve(step.covariate, unit, [float(v) for v in x], [float(v) for v in m], title)
+
+
+class ProgressText:
+    """A diagnosis's progress in words for the status line: what is being done, how far, and when it should end
+    (the time so far per step, times the steps left)."""
+
+    def __init__(self, what: str, clock: Callable[[], float] = time.monotonic) -> None:
+        self.what, self.clock = what, clock
+        self.started = clock()
+
+    def text(self, p: WorkProgress) -> str:
+        elapsed = self.clock() - self.started
+        left = elapsed / p.done * (p.total - p.done) if p.done > 0 else None
+        return (f"{self.what}: {p.task}, step {min(p.done + 1, p.total)} of {p.total} ({100 * p.fraction:.0f} %), "
+                f"{format_duration(elapsed)} so far, about {format_duration(left)} left")

@@ -5,12 +5,15 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
+from rich.segment import Segment
+from rich.style import Style as RichStyle
 from rich.table import Table
 from rich.text import Text
 from textual.binding import Binding
 from textual.app import ComposeResult
 from textual.containers import Vertical
-from textual.widgets import DataTable, Label, ProgressBar, SelectionList, Static
+from textual.strip import Strip
+from textual.widgets import DataTable, Label, OptionList, ProgressBar, SelectionList, Static
 from textual_plotext import PlotextPlot
 
 from .live import RunState, format_duration
@@ -80,28 +83,40 @@ class SigmaPlot(PlotextPlot):
 
 
 class HeadlineChart(Static):
-    """The headline error after each change of the model, as bars, with the level noise alone gives."""
+    """The headline error after each change of the model, as bars, with the level noise alone gives.
+    A change whose error is within noise says "ok" (the bar's colour says it too). The bars take the width
+    the chart has, so the numbers beside them are never cut."""
 
     plain = ""
+    history: Sequence[HistoryEntry] = ()
 
-    def show_history(self, history: Sequence[HistoryEntry], width: int = 14) -> None:
-        self.plain = "\n".join(f"{h.change}: {h.headline.error_pct:.2f} %" for h in history)
+    def show_history(self, history: Sequence[HistoryEntry]) -> None:
+        self.history = list(history)
+        self.plain = "\n".join(f"{h.change}: {h.headline.error_pct:.2f} %{' ok' if h.headline.within_noise else ''}"
+                               for h in history)
         if not history:
             self.update("")
             return
+        label_w, value_w = 14, len("100.00 % ok")
+        width = max(4, (self.content_size.width or 37) - label_w - value_w - 2)
         top = max(h.headline.error_pct for h in history) or 1.0
         t = Table.grid(padding=(0, 1))
-        t.add_column(no_wrap=True, max_width=16, overflow="ellipsis")
-        t.add_column(no_wrap=True)
-        t.add_column(justify="right", no_wrap=True)
+        t.add_column(width=label_w, overflow="fold")
+        t.add_column(no_wrap=True, width=width)
+        t.add_column(no_wrap=True, width=value_w)
         for h in history:
-            n = h.headline.error_pct / top * width
+            n = min(h.headline.error_pct / top, 1.0) * width
             bar = "█" * int(n) + ("▌" if n - int(n) >= 0.5 else "")
             style = "green" if h.headline.within_noise else "red"
-            t.add_row(h.change, Text(bar.ljust(width), style=style), f"{h.headline.error_pct:6.2f} %")
+            ok = " ok" if h.headline.within_noise else ""
+            t.add_row(h.change, Text(bar, style=style), f"{h.headline.error_pct:.2f} %{ok}")
         last = history[-1].headline
-        t.add_row("noise alone", "", f"{last.noise_pct:6.2f} %")
+        t.add_row("noise alone", "", f"{last.noise_pct:.2f} %")
         self.update(t)
+
+    def on_resize(self) -> None:
+        if self.history:
+            self.show_history(self.history)
 
 
 class ShapePlot(PlotextPlot):
@@ -127,17 +142,24 @@ class ShapePlot(PlotextPlot):
         self.refresh()
 
 
-class FitTable(DataTable):
-    """The fitted parameters and their standard errors."""
+class FitTable(Static):
+    """The fitted parameters and their standard errors. Numbers are never cut: a long parameter name
+    folds onto a second line instead."""
+
+    plain = ""
 
     def on_mount(self) -> None:
-        self.cursor_type = "none"
-        self.add_columns("parameter", "value", "+/- se")
+        self.show_rows([])
 
     def show_rows(self, rows: Sequence[FitRow]) -> None:
-        self.clear()
+        self.plain = "\n".join(f"{r.name} {r.value} {r.se}" for r in rows)
+        t = Table(box=None, padding=(0, 1), show_edge=False, header_style="bold")
+        t.add_column("parameter", overflow="fold", ratio=1)
+        t.add_column("value", no_wrap=True, min_width=max([len(r.value) for r in rows] + [5]))
+        t.add_column("+/- se", no_wrap=True, min_width=max([len(r.se) for r in rows] + [6]))
         for r in rows:
-            self.add_row(r.name, r.value, r.se)
+            t.add_row(r.name, r.value, r.se)
+        self.update(t)
 
 
 class BinTable(DataTable):
@@ -158,7 +180,8 @@ class BinTable(DataTable):
 
 
 class EffectList(SelectionList[str]):
-    """Effects: those in the model are checked; the others ranked by evidence. Space adds or removes."""
+    """Effects: those in the model are checked; the others ranked by evidence. Space adds or removes.
+    Each line says its state in words: [x] checked (in the next fit), [ ] not, not only by colour."""
 
     BINDINGS = [Binding("space", "select", "Add/remove effect")]
 
@@ -173,6 +196,19 @@ class EffectList(SelectionList[str]):
         chosen = set(self.selected)
         return [self.get_option_at_index(i).value for i in range(self.option_count)
                 if self.get_option_at_index(i).value in chosen]
+
+    def mark(self, index: int) -> str:
+        """The line's state in words."""
+        return "[x]" if self.get_option_at_index(index).value in self.selected else "[ ]"
+
+    def render_line(self, y: int) -> Strip:
+        """Textual's line without its coloured toggle, with [x] or [ ] in front instead."""
+        line = OptionList.render_line(self, y)
+        index = self.scroll_offset.y + y
+        if not 0 <= index < self.option_count:
+            return line
+        style = next(iter(line)).style if line.cell_length else self.rich_style
+        return Strip([Segment(self.mark(index) + " ", style + RichStyle(meta={"option": index})), *line])
 
 
 class RunProgress(Vertical):

@@ -1,0 +1,76 @@
+"""Form fields that say what is wrong with what is typed in them.
+
+`CheckedField` is Textual's `Input` with its own rules: `restrict` (or `type="number"`/`"integer"`) refuses
+characters that cannot be part of the value, and `validators` check the value as a whole. Textual only rings
+the bell when it refuses a character, so a file name typed into a number field silently became its digits
+("run1605.h5" -> 1605.5). Here a refused character marks the field: it shows as refused (`-refused`), says
+what it refused, and counts as wrong until it is emptied (ctrl+u) or its whole text is selected and typed
+over, since what is left is not what was typed; typing on after a refusal does not clear it. `RuleCheck` turns a function that returns a problem (or None) into a
+Textual validator, so the form's rules stay in one place (`form.field_problem`, `protocols.plan_check`).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from textual.message import Message
+from textual.validation import ValidationResult, Validator
+from textual.widgets import Input
+
+
+class RuleCheck(Validator):
+    """A validator from a function: text -> a one-line problem, or None when the text is fine."""
+
+    def __init__(self, problem: Callable[[str], str | None]) -> None:
+        super().__init__()
+        self.problem = problem
+
+    def validate(self, value: str) -> ValidationResult:
+        text = self.problem(value)
+        return self.success() if text is None else self.failure(text)
+
+
+class CheckedField(Input):
+    """An input whose refused characters are shown, not only rung on the bell."""
+
+    class Refused(Message):
+        """Characters were refused: the form says so."""
+
+        def __init__(self, field: "CheckedField") -> None:
+            super().__init__()
+            self.field = field
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.refused: list[str] = []  # what was refused (typed characters, pasted text) since the field was emptied
+        self._typing = ""
+
+    def replace(self, text: str, start: int, end: int) -> None:
+        before = self.value
+        whole = bool(before) and start <= 0 and end >= len(before)  # all the text selected and typed over
+        self._typing = text
+        super().replace(text, start, end)
+        if self.refused and ((not text and not self.value) or (whole and text and self.value != before)):
+            self.refused = []
+            self.set_class(False, "-refused")
+
+    def restricted(self) -> None:
+        if self._typing not in self.refused:
+            self.refused.append(self._typing)
+        self.set_class(True, "-refused")
+        self.post_message(self.Refused(self))
+        super().restricted()
+
+    def set_text(self, text: str) -> None:
+        """Set the value from the program (a loaded file): nothing is refused in it."""
+        self.refused = []
+        self.set_class(False, "-refused")
+        self.value = text
+
+    def refusal(self, label: str, what: str) -> str:
+        """The problem a refusal makes, in words ("" if nothing was refused)."""
+        if not self.refused:
+            return ""
+        chars = ", ".join(repr(c) for c in self.refused[:6]) + (", ..." if len(self.refused) > 6 else "")
+        return (f"{label}: refused {chars} ({what}); what is left may not be what you meant: "
+                "clear the field (ctrl+u) and type it again")
