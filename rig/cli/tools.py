@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-soft-limits", action="store_true", help="grbl: run into the end switches (ALARM:1) instead")
     p.add_argument("--no-homing", action="store_true", help="grbl: homing disabled ($22=0); start unlocked")
     p.add_argument("--microstep-um", type=float, default=0.1905, help="zaber: microstep size (default 0.1905)")
-    p.add_argument("-v", "--verbose", action="store_true", help="print every command and reply")
+    # -v (every command's -v, rig.cli.options) prints every command and reply
     p.set_defaults(func=cmd_stage_sim)
 
 
@@ -151,5 +151,5 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def cmd_stage_sim(args: argparse.Namespace) -> int:
     from fakes.stage_sim import serve
 
-    return serve(args.kind, verbose=args.verbose, travel_mm=args.travel_mm, speed_mm_s=args.speed_mm_s,
+    return serve(args.kind, verbose=bool(args.verbose), travel_mm=args.travel_mm, speed_mm_s=args.speed_mm_s,
                  soft_limits=not args.no_soft_limits, homing=not args.no_homing, microstep_um=args.microstep_um)
