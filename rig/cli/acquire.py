@@ -69,7 +69,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..simulation.demo import run_demo
 
     return run_demo(out_dir=Path(args.out), frames=args.frames, width=848 if args.full_resolution else args.width,
-                    seed=args.seed, depth_unit_mm=args.depth_unit_mm)
+                    seed=args.seed, depth_unit_mm=args.depth_unit_mm, verbosity=verbosity(args))
 
 
 def cmd_run(args: argparse.Namespace) -> int:

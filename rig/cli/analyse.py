@@ -6,6 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
+from .options import verbosity
 from .usage import UsageError
 
 
@@ -85,30 +88,44 @@ def power_law_json(fit) -> dict:
             "z_max_m": fit.z_max_m, "lam_fixed": fit.lam_fixed}
 
 
+def progress_line(args: argparse.Namespace, title: str):
+    """The terminal's progress line for this command (silent when stderr is not a terminal, or with -q)."""
+    from ..reports.work_progress import WorkProgressLine
+
+    return WorkProgressLine(title, verbosity(args))
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from ..analysis import fit_recording
+    from ..diagnosis import headline
+    from ..models import Model, power_law
+    from ..models.progress import ProgressCounter
 
     if args.model:
         return _fit_model(args)
     if args.effects:
         catalogue_of(args)  # a broken effects file is an error even when no model uses it yet
-    try:
-        r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    with progress_line(args, "rig fit") as progress:
+        counter = ProgressCounter(progress, 4)
+        try:
+            r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max, counter=counter)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        d = r.samples.positive_variance()
+        counter.step("fitting the model the headline error is of")
+        gamma_fit = Model(power_law).fit(d)
+        counter.step("headline error: every statistic the model predicts")
+        h = headline(gamma_fit, d)
+        counter.finish()
     if args.json:
         print(json.dumps({**power_law_json(r.fit), "notes": r.notes}, indent=2))
     else:
         for note in r.notes:
             print(f"note: {note}")
-        from ..diagnosis import headline
-        from ..models import Model, power_law
-
         mode = "projector on" if r.projector_on else "projector off"
         print(f"{r.path}: {r.protocol}, {mode}")
         print(r.fit.report())
-        d = r.samples.positive_variance()
-        print(f"    headline error: {headline(Model(power_law).fit(d), d)}")
+        print(f"    headline error: {h}")
         print(f"    (what is missing? rig diagnose {args.recording})")
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
@@ -120,14 +137,25 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
+    from ..diagnosis.scores import held_out_folds
+    from ..models.progress import ProgressCounter
 
     model = _parse_model(args.model, catalogue_of(args))
-    d, notes = _model_data(args.recording, args.z_min, args.z_max)
-    try:
-        f = model.fit(d)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    h = headline(f, d)
+    with progress_line(args, "rig fit") as progress:
+        counter = ProgressCounter(progress, 3)
+        counter.step("reading the recording")
+        d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        if not args.no_held_out:
+            counter.expect(2 + len(np.unique(held_out_folds(d))))
+        counter.step(f"fitting {model.name}")
+        try:
+            f = model.fit(d)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        counter.step("headline error: every statistic the model predicts")
+        h = headline(f, d)
+        nll = None if args.no_held_out or args.json else held_out_nll(model, d, f, counter=counter)
+        counter.finish()
     if args.json:
         print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
                           "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
@@ -137,26 +165,36 @@ def _fit_model(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     print(f.report())
     print(f"    headline error: {h}")
-    if not args.no_held_out:
-        print(f"    held-out negative log-likelihood per degree of freedom: {held_out_nll(model, d, f):.6f}")
+    if nll is not None:
+        print(f"    held-out negative log-likelihood per degree of freedom: {nll:.6f}")
     return 0
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
+    from ..diagnosis.scores import held_out_folds
+    from ..models.progress import ProgressCounter
 
-    d, notes = _model_data(args.recording)
-    for note in notes:
-        print(f"note: {note}")
     cat = catalogue_of(args)
     models = [_parse_model(m, cat) for m in args.models.split(",")]
     rows = []
-    for m in models:
-        try:
-            f = m.fit(d)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
-        rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f)))
+    with progress_line(args, "rig compare") as progress:
+        counter = ProgressCounter(progress, 1 + 2 * len(models))
+        counter.step("reading the recording")
+        d, notes = _model_data(args.recording)
+        if not args.no_held_out:
+            counter.expect(len(models) * (2 + len(np.unique(held_out_folds(d)))))
+        for m in models:
+            counter.step(f"fitting {m.name}")
+            try:
+                f = m.fit(d)
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+            counter.step(f"headline error of {m.name}")
+            rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f, counter=counter)))
+        counter.finish()
+    for note in notes:
+        print(f"note: {note}")
     base_bic = rows[0][1].bic
     w = max(len(m.name) for m, *_ in rows) + 2
     print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>13} {'dBIC':>12} {'held-out NLL/dof':>17}")
@@ -170,20 +208,32 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose, render_text
+    from ..models.progress import WorkProgress
 
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
     _check_writable(out)
-    d, notes = _model_data(args.recording)
     model = _parse_model(args.model, cat) if args.model else None
-    try:
-        diag = diagnose(d, model, source=args.recording, catalogue=cat)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    with progress_line(args, "rig diagnose") as progress:
+        progress(WorkProgress("reading the recording", 0, 1))
+        d, notes = _model_data(args.recording)
+        steps = [0]
+
+        def fits(p: WorkProgress) -> None:  # the diagnosis's own steps; the report is one more
+            steps[0] = p.total
+            if not p.finished:
+                progress(p)
+
+        try:
+            diag = diagnose(d, model, source=args.recording, catalogue=cat, progress=fits)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        progress(WorkProgress("writing the plots and the report", steps[0], steps[0] + 1))
+        plots, page = _write_report(diag, out)
+        progress(WorkProgress("done", steps[0] + 1, steps[0] + 1, finished=True))
     for note in notes:
         print(f"note: {note}")
     print(render_text(diag))
-    plots, page = _write_report(diag, out)
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return 0
 

@@ -12,6 +12,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TextIO
 
+from .options import verbosity
 from .usage import UsageError
 
 
@@ -137,8 +138,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    with tempfile.TemporaryDirectory() as tmp:
-        trials = validate(effects, seeds, Path(tmp), jobs=args.jobs)
+    from ..reports.work_progress import WorkProgressLine
+
+    with tempfile.TemporaryDirectory() as tmp, WorkProgressLine("rig validate-diagnosis", verbosity(args)) as progress:
+        trials = validate(effects, seeds, Path(tmp), out=progress.above(sys.stdout), jobs=args.jobs, progress=progress)
     print()
     print(summary(trials))
     if args.json:

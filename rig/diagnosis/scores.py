@@ -25,6 +25,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..models import Model, ModelData, ModelFit
+from ..models.progress import ProgressCounter
 from .bins import compare_bins, range_radius_groups
 from .consistency import ALPHA, Consistency
 from .residuals import residuals
@@ -95,17 +96,25 @@ def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
     )
 
 
-def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None) -> float:
-    """Negative log-likelihood per degree of freedom on left-out stops (or image strips)."""
-    stops = np.unique(d.stop)
-    if len(stops) >= 3:
-        groups = d.stop
-    else:
-        edges = np.quantile(d.u_px, [0.25, 0.5, 0.75])
-        groups = np.digitize(d.u_px, edges)
+def held_out_folds(d: ModelData) -> np.ndarray:
+    """The part each pixel is left out with: its stop, or (fewer than three stops) one of four vertical strips."""
+    if len(np.unique(d.stop)) >= 3:
+        return d.stop
+    edges = np.quantile(d.u_px, [0.25, 0.5, 0.75])
+    return np.digitize(d.u_px, edges)
+
+
+def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
+                 counter: ProgressCounter | None = None) -> float:
+    """Negative log-likelihood per degree of freedom on left-out stops (or image strips); `counter`, if given,
+    is told of each refit (`rig.models.progress`)."""
+    groups = held_out_folds(d)
     start = full.values if full is not None else None
     total, dof = 0.0, 0.0
-    for g in np.unique(groups):
+    parts = np.unique(groups)
+    for i, g in enumerate(parts):
+        if counter is not None:
+            counter.step(f"held-out score of {model.name}: part {i + 1} of {len(parts)} left out")
         test = groups == g
         train_d, test_d = d.select(~test), d.select(test)
         f = model.fit(train_d, start=start)
