@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from .options import verbosity
+from .options import refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -101,6 +102,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from ..models import Model, power_law
     from ..models.progress import ProgressCounter
 
+    refuse_unwritable(args.plot, "--plot")
     if args.model:
         return _fit_model(args)
     if args.effects:
@@ -131,7 +133,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 
         out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
-        print(f"plot: {out}")
+        print(f"plot: {out}", file=sys.stderr if args.json else sys.stdout)  # stdout holds the JSON alone
     return 0
 
 
@@ -265,9 +267,10 @@ def _write_report(diag, out: Path) -> tuple[list[Path], Path]:
 
 
 def _check_writable(folder: Path) -> None:
-    """Refuse before the work, not after it, when the report cannot be written."""
-    probe = folder if folder.exists() else next((p for p in folder.parents if p.exists()), Path("."))
-    import os
+    """Refuse before the work, not after it, when the report cannot be written (into `folder`, through a
+    working folder beside it)."""
+    from ..reports.writable import output_problem
 
-    if not os.access(probe, os.W_OK):
-        raise UsageError(f"cannot write the report to {folder} ({probe} is not writable); pass --out to a writable folder")
+    problem = output_problem(folder, folder=True) or output_problem(folder.parent, folder=True)
+    if problem:
+        raise UsageError(f"cannot write the report to {folder}: {problem}; pass --out a folder you can write to")

@@ -1,12 +1,16 @@
-"""Options every command takes: `-v` (more detail, repeatable) and `-q` (no progress, no chatter on stderr).
+"""Options every command takes: `-v` (more detail, repeatable) and `-q` (no progress, no chatter on stderr);
+and the check of output options (`--plot FILE`, `--out DIR`, ...) before the work they come at the end of.
 
-They may be given before the command (`rig -q fit run.h5`) or after it (`rig fit run.h5 -q`).
+-v and -q may be given before the command (`rig -q fit run.h5`) or after it (`rig fit run.h5 -q`).
 Results (stdout) are the same at every verbosity; only what goes to stderr changes.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from .usage import UsageError
 
 QUIET = -1
 NORMAL = 0
@@ -30,3 +34,13 @@ def verbosity(args: argparse.Namespace) -> int:
     if getattr(args, "quiet", False):
         return QUIET
     return int(getattr(args, "verbose", 0) or 0)
+
+
+def refuse_unwritable(path: str | Path | None, option: str, *, folder: bool = False) -> None:
+    """A one-line UsageError now, before any work, if the output `option` names cannot be written."""
+    from ..reports.writable import output_problem
+
+    problem = None if path is None else output_problem(path, folder=folder)
+    if problem:
+        what = "a folder" if folder else "a file"
+        raise UsageError(f"cannot write {option} {path}: {problem}; give {option} {what} you can write to")

@@ -12,7 +12,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TextIO
 
-from .options import verbosity
+from .options import refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -136,6 +136,7 @@ def cmd_paper_windows(args: argparse.Namespace) -> int:
 def cmd_validate(args: argparse.Namespace) -> int:
     from ..simulation.validation import summary, validate
 
+    refuse_unwritable(args.json, "--json")
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     from ..reports.work_progress import WorkProgressLine
