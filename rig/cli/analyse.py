@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import refuse_unwritable, verbosity
+from .options import EXIT_UNDETERMINED, refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", help="fit several models and show their errors side by side")
     p.add_argument("recording")
     p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
+    p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
+    p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_compare)
@@ -128,13 +130,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"{r.path}: {r.protocol}, {mode}")
         print(r.fit.report())
         print(f"    headline error: {h}")
-        print(f"    (what is missing? rig diagnose {args.recording})")
+        print(_fix_line(h) or f"    (what is missing? rig diagnose {args.recording})")
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 
         out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
         print(f"plot: {out}", file=sys.stderr if args.json else sys.stdout)  # stdout holds the JSON alone
-    return 0
+    return exit_status([h])
 
 
 def _fit_model(args: argparse.Namespace) -> int:
@@ -162,14 +164,16 @@ def _fit_model(args: argparse.Namespace) -> int:
         print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
                           "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
                           "within_noise": h.within_noise, "notes": notes}, indent=2))
-        return 0
+        return exit_status([h])
     for note in notes:
         print(f"note: {note}")
     print(f.report())
     print(f"    headline error: {h}")
+    if not h.determined:
+        print(_fix_line(h))
     if nll is not None:
         print(f"    held-out negative log-likelihood per degree of freedom: {nll:.6f}")
-    return 0
+    return exit_status([h])
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -183,7 +187,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     with progress_line(args, "rig compare") as progress:
         counter = ProgressCounter(progress, 1 + 2 * len(models))
         counter.step("reading the recording")
-        d, notes = _model_data(args.recording)
+        d, notes = _model_data(args.recording, args.z_min, args.z_max)
         if not args.no_held_out:
             counter.expect(len(models) * (2 + len(np.unique(held_out_folds(d)))))
         for m in models:
@@ -199,13 +203,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     base_bic = rows[0][1].bic
     w = max(len(m.name) for m, *_ in rows) + 2
-    print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>13} {'dBIC':>12} {'held-out NLL/dof':>17}")
+    print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>14} {'dBIC':>12} {'held-out NLL/dof':>17}")
     for m, f, h, nll in rows:
-        print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {('yes' if h.within_noise else 'no'):>13} "
+        within = {"within noise": "yes", "beyond noise": "no"}.get(h.state, h.state)
+        print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {within:>14} "
               f"{f.bic - base_bic:>12.1f} {'' if nll is None else f'{nll:.6f}':>17}")
     best = min(rows, key=lambda r: r[1].bic)
     print(f"\nLowest BIC: {best[0].name}; its headline error is {best[2]}.")
-    return 0
+    undetermined = [h for _, _, h, _ in rows if not h.determined]
+    if undetermined:
+        print(f"{', '.join(m.name for m, _, h, _ in rows if not h.determined)}: {undetermined[0].lambda_status.reason}.")
+        print(_fix_line(undetermined[0]).strip())
+    return exit_status([h for _, _, h, _ in rows])
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -236,8 +245,19 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for note in notes:
         print(f"note: {note}")
     print(render_text(diag))
+    status = exit_status([st.headline for st in diag.steps])
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
-    return 0
+    return status
+
+
+def exit_status(headlines) -> int:
+    """0, or EXIT_UNDETERMINED when a model the command fitted has a lambda the data do not determine."""
+    return EXIT_UNDETERMINED if any(not h.determined for h in headlines) else 0
+
+
+def _fix_line(h) -> str | None:
+    """The way to a determined lambda, as a line of the text report; None when it is determined."""
+    return None if h.determined else f"    to determine lambda: {h.lambda_status.fix}"
 
 
 def _write_report(diag, out: Path) -> tuple[list[Path], Path]:

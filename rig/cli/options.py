@@ -12,6 +12,9 @@ from pathlib import Path
 
 from .usage import UsageError
 
+#: the exit status of a command that worked but fitted a lambda the data do not determine (rig.models.determinacy)
+EXIT_UNDETERMINED = 3
+
 QUIET = -1
 NORMAL = 0
 VERBOSE = 1

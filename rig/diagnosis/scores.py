@@ -10,7 +10,9 @@ se(ln sigma) = 0.5 * sqrt(sum nu^2 (2/nu + excess/n)) / sum nu, with the bin's m
 kurtosis. The headline bins are "within noise" when sum (ln ratio / se)^2 is consistent with a
 chi^2 of (bins - free parameters) degrees of freedom (p >= 0.001); the model is within noise
 when, beyond that, every other statistic it predicts is too (`rig.diagnosis.consistency`), and
-the headline names the worst one that is not.
+the headline names the worst one that is not. A model that fits lambda to data that do not
+determine it (`rig.models.determinacy`: fewer than three ranges, or a span under 1.5 x) is not
+judged at all: its verdict says "lambda NOT DETERMINED" and why.
 
 Held-out: leave one stop out (or, for a single-stop recording, one of four vertical strips
 of the image), fit on the rest, and score the left-out pixels; reported as negative
@@ -25,6 +27,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..models import Model, ModelData, ModelFit
+from ..models.determinacy import LambdaStatus, lambda_status
 from ..models.progress import ProgressCounter
 from .bins import compare_bins, range_radius_groups
 from .consistency import ALPHA, Consistency
@@ -42,6 +45,20 @@ class Headline:
     p_value: float
     bins: int
     consistency: Consistency | None = None
+    #: does the data determine lambda (when the model fits it)? A fit whose lambda is not determined is
+    #: never called "within noise" in words (`verdict`, `state`), whatever the statistics say
+    lambda_status: LambdaStatus | None = None
+
+    @property
+    def determined(self) -> bool:
+        return self.lambda_status is None or self.lambda_status.determined
+
+    @property
+    def state(self) -> str:
+        """In two words: "within noise", "beyond noise", or "not determined" (lambda free, the data too narrow)."""
+        if not self.determined:
+            return "not determined"
+        return "within noise" if self.within_noise else "beyond noise"
 
     @property
     def sigma_within_noise(self) -> bool:
@@ -62,6 +79,8 @@ class Headline:
         return max(0.0, self.chi2 - self.dof) + extra
 
     def verdict(self) -> str:
+        if not self.determined:
+            return f"lambda NOT DETERMINED: {self.lambda_status.reason.removeprefix('lambda is not determined: ')}"
         if self.within_noise:
             return "every statistic within noise" if self.consistency is not None else "within noise"
         worst = self.consistency.worst(extra=1) if self.consistency is not None else None
@@ -93,6 +112,7 @@ def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
         noise_pct=100 * float(np.sqrt(np.mean(b.se_log**2))),
         chi2=stat, dof=dof, p_value=float(chi2.sf(stat, dof)), bins=len(b.log_ratio),
         consistency=residuals(fit, d, pred).consistency if checks else None,
+        lambda_status=lambda_status(d, free=not fit.lam_fixed),
     )
 
 
