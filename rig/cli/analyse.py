@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -20,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
     p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--plot", help="write a sigma-vs-range PNG here")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     _add_effects_arg(p)
@@ -32,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
     p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_compare)
 
@@ -39,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("recording")
     p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
     p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_diagnose)
 
@@ -84,13 +85,6 @@ def _parse_model(text: str, catalogue=None):
         raise UsageError(str(e)) from None
 
 
-def power_law_json(fit) -> dict:
-    """`rig fit --json` of the paper's power law (keys as before the layout change)."""
-    return {"k": fit.k, "lam": fit.lam, "se_k": fit.se_k, "se_lam": fit.se_lam, "corr": fit.corr, "loglik": fit.loglik,
-            "n_pixels": fit.n_pixels, "n_samples": fit.n_samples, "dof": fit.dof, "z_min_m": fit.z_min_m,
-            "z_max_m": fit.z_max_m, "lam_fixed": fit.lam_fixed}
-
-
 def progress_line(args: argparse.Namespace, title: str):
     """The terminal's progress line for this command (silent when stderr is not a terminal, or with -q)."""
     from ..reports.work_progress import WorkProgressLine
@@ -122,7 +116,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
         h = headline(gamma_fit, d)
         counter.finish()
     if args.json:
-        print(json.dumps({**power_law_json(r.fit), "notes": r.notes}, indent=2))
+        from ..reports.result_json import document, dumps, fit_json
+
+        print(dumps(document("fit", args.recording, r.notes, [fit_json(r.fit, h)], best=r.fit.model.name,
+                             window_m=(args.z_min, args.z_max))))
     else:
         for note in r.notes:
             print(f"note: {note}")
@@ -158,12 +155,13 @@ def _fit_model(args: argparse.Namespace) -> int:
             raise UsageError(str(e)) from None
         counter.step("headline error: every statistic the model predicts")
         h = headline(f, d)
-        nll = None if args.no_held_out or args.json else held_out_nll(model, d, f, counter=counter)
+        nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter)
         counter.finish()
     if args.json:
-        print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
-                          "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
-                          "within_noise": h.within_noise, "notes": notes}, indent=2))
+        from ..reports.result_json import document, dumps, fit_json
+
+        print(dumps(document("fit", args.recording, notes, [fit_json(f, h, held_out_nll=nll)], best=model.name,
+                             window_m=(args.z_min, args.z_max))))
         return exit_status([h])
     for note in notes:
         print(f"note: {note}")
@@ -199,6 +197,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
             counter.step(f"headline error of {m.name}")
             rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f, counter=counter)))
         counter.finish()
+    best = min(rows, key=lambda r: r[1].bic)
+    if args.json:
+        from ..reports.result_json import document, dumps, fit_json
+
+        print(dumps(document("compare", args.recording, notes, [fit_json(f, h, held_out_nll=nll) for _, f, h, nll in rows],
+                             best=best[0].name, window_m=(args.z_min, args.z_max))))
+        return exit_status([h for _, _, h, _ in rows])
     for note in notes:
         print(f"note: {note}")
     base_bic = rows[0][1].bic
@@ -208,7 +213,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
         within = {"within noise": "yes", "beyond noise": "no"}.get(h.state, h.state)
         print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {within:>14} "
               f"{f.bic - base_bic:>12.1f} {'' if nll is None else f'{nll:.6f}':>17}")
-    best = min(rows, key=lambda r: r[1].bic)
     print(f"\nLowest BIC: {best[0].name}; its headline error is {best[2]}.")
     undetermined = [h for _, _, h, _ in rows if not h.determined]
     if undetermined:
@@ -242,10 +246,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         progress(WorkProgress("writing the plots and the report", steps[0], steps[0] + 1))
         plots, page = _write_report(diag, out)
         progress(WorkProgress("done", steps[0] + 1, steps[0] + 1, finished=True))
+    status = exit_status([st.headline for st in diag.steps])
+    if args.json:
+        from ..reports.result_json import diagnosis_json, document, dumps
+
+        fits, part = diagnosis_json(diag, plots, page)
+        print(dumps(document("diagnose", args.recording, notes, fits, best=diag.final_fit.model.name, diagnosis=part)))
+        return status
     for note in notes:
         print(f"note: {note}")
     print(render_text(diag))
-    status = exit_status([st.headline for st in diag.steps])
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return status
 
