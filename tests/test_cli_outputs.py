@@ -46,3 +46,42 @@ def test_a_writable_output_is_tried_and_left_clean(tmp_path):
     assert output_problem(tmp_path / "report", folder=True) is None
     assert list(tmp_path.iterdir()) == []  # the test file is gone and no folder was made
     assert "is a folder, not a file" in output_problem(tmp_path)
+
+
+def test_fit_table_reads_back_as_the_fit(recording, tmp_path):
+    import csv
+    import json
+
+    from rig.analysis import fit_recording
+
+    table = tmp_path / "tables" / "stops.csv"
+    r = subprocess.run([RIG, "fit", str(recording), "--table", str(table)], capture_output=True, text=True)
+    assert r.returncode == 0 and f"table: {table}" in r.stdout
+    with open(table, newline="") as f:
+        rows = list(csv.DictReader(f))
+    fit = fit_recording(recording)
+    assert list(rows[0]) == ["stop", "range_m", "pixels", "samples", "measured_sigma_m", "model_sigma_m", "fill_rate"]
+    assert [row["stop"] for row in rows] == ["0.500m", "1.000m", "1.500m", "2.000m"] == fit.measured.label
+    assert sum(int(row["pixels"]) for row in rows) == fit.fit.n_pixels
+    assert sum(int(row["samples"]) for row in rows) == fit.fit.n_samples
+    for row, z, sigma in zip(rows, fit.measured.z_m, fit.measured.sigma_m):
+        assert float(row["range_m"]) == pytest.approx(z, rel=1e-12)
+        assert float(row["measured_sigma_m"]) == pytest.approx(sigma, rel=1e-12)
+        assert float(row["model_sigma_m"]) == pytest.approx(fit.fit.sigma_m(z), rel=2e-3)  # k Z^lambda at the stop
+        assert 0.5 < float(row["fill_rate"]) <= 1.0
+    with_model = subprocess.run([RIG, "fit", str(recording), "--model", "active", "--no-held-out", "--json",
+                                 "--table", str(tmp_path / "active.csv")], capture_output=True, text=True)
+    assert with_model.returncode == 0 and json.loads(with_model.stdout)["fits"][0]["model"] == "active"
+    assert "table: " in with_model.stderr  # stdout holds the JSON alone
+    with open(tmp_path / "active.csv", newline="") as f:
+        active = list(csv.DictReader(f))
+    assert [a["stop"] for a in active] == [row["stop"] for row in rows]
+    k_active = [float(a["model_sigma_m"]) / float(a["range_m"]) ** 3 for a in active]  # active: k Z^3 at each stop
+    assert max(k_active) == pytest.approx(min(k_active), rel=1e-3)
+
+
+def test_fit_table_to_an_unwritable_place_fails_at_once(recording, tmp_path):
+    regular = tmp_path / "a-file"
+    regular.write_text("")
+    r = subprocess.run([RIG, "fit", str(recording), "--table", str(regular / "stops.csv")], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("rig: error: cannot write --table") and r.stdout == ""

@@ -19,6 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
     p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--plot", help="write a sigma-vs-range PNG here")
+    p.add_argument("--table", metavar="STOPS.csv", help="write the per-stop table here (range, pixels, samples, "
+                                                       "measured and model sigma, fill rate; CSV)")
     p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
@@ -99,6 +101,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from ..models.progress import ProgressCounter
 
     refuse_unwritable(args.plot, "--plot")
+    refuse_unwritable(args.table, "--table")
     if args.model:
         return _fit_model(args)
     if args.effects:
@@ -133,6 +136,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
         out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
         print(f"plot: {out}", file=sys.stderr if args.json else sys.stdout)  # stdout holds the JSON alone
+    _write_table(args, r.fit, r.samples)
     return exit_status([h])
 
 
@@ -162,6 +166,7 @@ def _fit_model(args: argparse.Namespace) -> int:
 
         print(dumps(document("fit", args.recording, notes, [fit_json(f, h, held_out_nll=nll)], best=model.name,
                              window_m=(args.z_min, args.z_max))))
+        _write_table(args, f, d)
         return exit_status([h])
     for note in notes:
         print(f"note: {note}")
@@ -171,6 +176,7 @@ def _fit_model(args: argparse.Namespace) -> int:
         print(_fix_line(h))
     if nll is not None:
         print(f"    held-out negative log-likelihood per degree of freedom: {nll:.6f}")
+    _write_table(args, f, d)
     return exit_status([h])
 
 
@@ -258,6 +264,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(render_text(diag))
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return status
+
+
+def _write_table(args: argparse.Namespace, fit, d) -> None:
+    """`--table FILE`: the per-stop table of `fit` on its pixels `d` (rig.reports.stop_table)."""
+    if not args.table:
+        return
+    from ..reports.stop_table import stop_rows, write_stop_table
+
+    out = write_stop_table(stop_rows(fit, d), args.table)
+    print(f"table: {out}", file=sys.stderr if args.json else sys.stdout)
 
 
 def exit_status(headlines) -> int:
