@@ -16,7 +16,7 @@ RIG = str(Path(sys.executable).parent / "rig")
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("outputs") / "small.h5"
-    record_perpendicular(path, width=32, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0])
+    record_perpendicular(path, width=32, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0], exposure_us=3300.0, gain=32.0)
     return path
 
 
@@ -85,3 +85,48 @@ def test_fit_table_to_an_unwritable_place_fails_at_once(recording, tmp_path):
     regular.write_text("")
     r = subprocess.run([RIG, "fit", str(recording), "--table", str(regular / "stops.csv")], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("rig: error: cannot write --table") and r.stdout == ""
+
+
+def test_the_html_report_carries_the_runs_metadata(recording, tmp_path):
+    import datetime as dt
+    from html.parser import HTMLParser
+    from importlib.metadata import version
+
+    from protocols.recording import Recording
+
+    class RunRows(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.rows, self.key, self.in_td = {}, None, False
+
+        def handle_starttag(self, tag, attrs):
+            attrs = dict(attrs)
+            if tag == "tr" and "data-key" in attrs:
+                self.key = attrs["data-key"]
+            self.in_td = tag == "td" and self.key is not None
+
+        def handle_endtag(self, tag):
+            if tag == "tr":
+                self.key = None
+            self.in_td = False
+
+        def handle_data(self, data):
+            if self.in_td:
+                self.rows[self.key] = self.rows.get(self.key, "") + data
+
+    r = subprocess.run([RIG, "diagnose", str(recording), "--out", str(tmp_path / "report")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    page = RunRows()
+    page.feed((tmp_path / "report" / "diagnosis.html").read_text())
+    run = page.rows
+    with Recording(recording) as rec:
+        started, ended = rec.attrs["started_utc"], rec.attrs["ended_utc"]
+    assert run["file"] == str(recording) and run["recorded_utc"] == f"{started} to {ended}"
+    made = dt.datetime.fromisoformat(run["report_utc"])
+    assert abs((dt.datetime.now(dt.timezone.utc) - made).total_seconds()) < 600
+    assert run["rig_version"] == version("rig") == run["recorded_with"]
+    assert run["camera_model"] == "Fake D435 (simulated)" and run["camera_serial"] == "FAKE-0001"
+    assert run["camera_firmware"] == "sim"
+    assert run["exposure"] == "3300 us" and run["gain"] == "32" and run["projector"] == "on"
+    assert run["stage"] == "fake-stage, travel 0.3-3.5 m (simulated)" and run["protocol"] == "perpendicular"
+    assert run["stops"] == "4: 0.500m, 1.000m, 1.500m, 2.000m; 8 frames each"

@@ -250,7 +250,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise UsageError(str(e)) from None
         progress(WorkProgress("writing the plots and the report", steps[0], steps[0] + 1))
-        plots, page = _write_report(diag, out)
+        plots, page = _write_report(diag, out, args.recording)
         progress(WorkProgress("done", steps[0] + 1, steps[0] + 1, finished=True))
     status = exit_status([st.headline for st in diag.steps])
     if args.json:
@@ -286,21 +286,25 @@ def _fix_line(h) -> str | None:
     return None if h.determined else f"    to determine lambda: {h.lambda_status.fix}"
 
 
-def _write_report(diag, out: Path) -> tuple[list[Path], Path]:
+def _write_report(diag, out: Path, recording: str) -> tuple[list[Path], Path]:
     """Plots and page are made in a folder beside `out`, then moved in file by file (each move atomic), and
     the previous run's diagnosis files that this one did not make are removed: a diagnosis killed while it
     works leaves the previous report whole, never a mix of old and new plots."""
     import os
     import shutil
 
+    from protocols.recording import utc_now
+
+    from .. import package_version
     from ..reports.diagnosis_html import write_html
     from ..reports.diagnosis_plots import write_plots
+    from ..reports.run_info import run_info
 
     out.mkdir(parents=True, exist_ok=True)
     work = out.parent / f".{out.name}.{os.getpid()}.writing"
     try:
         plots = write_plots(diag, work)
-        page = write_html(diag, plots, work)
+        page = write_html(diag, plots, work, run_info(recording, utc_now(), package_version()))
         made = [*plots, page]
         for old in out.glob("diagnosis*"):
             if old.is_file() and old.name not in {p.name for p in made}:

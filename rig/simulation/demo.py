@@ -12,6 +12,9 @@ from pathlib import Path
 
 from drivers.camera import CameraSettings
 from protocols import Runner, perpendicular
+from protocols.recording import utc_now
+
+from .. import package_version
 
 from ..analysis import fit_recording
 from ..devices import open_devices
@@ -20,6 +23,7 @@ from ..models import ModelData
 from ..reports.diagnosis_html import write_html
 from ..reports.diagnosis_plots import write_plots
 from ..reports.progress import TerminalProgress
+from ..reports.run_info import run_info
 from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 from ..reports.tables import fit_table
 from ..reports.work_progress import WorkProgressLine
@@ -114,5 +118,5 @@ def _diagnosis_loop(out_dir: Path, *, seed: int, verbosity: int = 0) -> list[tup
                       f"(simulated: {DEMO_NOISE_FLOOR_PX * 106 / 848:.4g} px at this image width)")
     report_dir = out_dir / "diagnosis"
     plots = write_plots(diag, report_dir)
-    page = write_html(diag, plots, report_dir)
+    page = write_html(diag, plots, report_dir, run_info(path, utc_now(), package_version()))
     return [("recording:", path), ("report:", page)] + [("plot:", p) for p in plots]
