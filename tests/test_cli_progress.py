@@ -99,3 +99,13 @@ def test_time_left_is_the_time_per_finished_step_times_the_steps_to_come():
     line.current, line.step_t0 = WorkProgress("third", 2, 4), t0 + 60  # two steps took a minute
     assert line.line(t0 + 70) == "rig x [#######.......] 2/4 1:10, about 0:50 left: third"
     line.close()
+
+
+def test_a_run_on_a_terminal_shows_frames_and_the_time_left(tmp_path):
+    status, out, err = run_with_stderr_on_a_terminal(
+        [RIG, "run", "--protocol", "perpendicular", "--frames", "12", "--stops", "0.5,1.0,1.5", "--camera", "fake:width=32",
+         "-o", str(tmp_path / "r.h5")])
+    assert status == 0 and "recorded 3 stops" in out
+    bars = [f for f in err.split("\r") if "frames" in f]
+    assert any(re.search(r"\[ 2/3\]   1\.000m #+\.* \d+/12 frames, about \d+:\d\d left", b) for b in bars), bars
+    assert re.search(r"\[ 1/3\]   0\.500m done: .*\(\s*\d+\.\d s, about \d+:\d\d left\)", err)
