@@ -13,6 +13,7 @@ from protocols.recording import Recording
 
 from .diagnosis.bins import BinnedSigma, pooled_sigma, sigma_by_range
 from .models import ModelData, ModelFit, fit_power_law, load_samples
+from .models.progress import ProgressCounter
 
 
 @dataclass
@@ -26,7 +27,11 @@ class RecordingFit:
     notes: list[str]  # what to know about the recording itself (interrupted, stops missing, entries skipped)
 
 
-def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: float | None = None) -> RecordingFit:
+def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: float | None = None,
+                  counter: ProgressCounter | None = None) -> RecordingFit:
+    """`counter`, if given, is told of the two steps: reading the recording, fitting (rig.models.progress)."""
+    counter = counter or ProgressCounter(None, 2)
+    counter.step("reading the recording")
     with Recording(path) as rec:
         samples = load_samples(rec)
         labels = rec.stop_labels()
@@ -35,6 +40,7 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
         notes = rec.notes()
     if z_min_m is not None or z_max_m is not None:
         samples = samples.in_range(z_min_m or 0.0, z_max_m or float("inf"))
+    counter.step("fitting k and lambda")
     fit = fit_power_law(samples)
     if len(labels) > 1:
         measured = pooled_sigma(samples, samples.stop, labels)

@@ -31,8 +31,8 @@ def test_run_then_fit(tmp_path, capsys):
     assert "perpendicular, projector on" in text and "lambda = " in text
     assert (tmp_path / "p.png").stat().st_size > 10_000
     assert main(["fit", str(out), "--json"]) == 0
-    fit = json.loads(capsys.readouterr().out)
-    assert abs(fit["lam"] - 3.0) < 3 * fit["se_lam"]
+    fit = json.loads(capsys.readouterr().out)["fits"][0]
+    assert abs(fit["values"]["lambda"] - 3.0) < 3 * fit["errors"]["lambda"]
     assert fit["n_samples"] == 11 * 20 * 48 * 27
 
 

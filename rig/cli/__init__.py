@@ -17,17 +17,27 @@ from typing import TextIO
 from drivers.errors import DeviceError, FolderImportError
 
 from . import acquire, analyse, tools
+from .options import add_verbosity
 from .usage import UsageError
 
 __all__ = ["main", "build_parser", "run_command", "UsageError", "import_main", "devices_main", "paper_windows_main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rig", description="Depth-camera range-error rig: acquire, fit, diagnose.")
+    from .. import package_version
+
+    parser = argparse.ArgumentParser(prog="rig", description="Depth-camera range-error rig: acquire, fit, diagnose.",
+                                     epilog="Exit status: 0 done; 2 bad input or a device error (one line on stderr); "
+                                            "3 done, but lambda is not determined by the data (the output says why); "
+                                            "130 interrupted.")
+    parser.add_argument("--version", action="version", version=f"rig {package_version()}")
+    add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True)
     acquire.register(sub)
     analyse.register(sub)
     tools.register(sub)
+    for command in sub.choices.values():
+        add_verbosity(command, top=False)
     return parser
 
 

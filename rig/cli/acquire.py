@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .options import QUIET, verbosity
 from .usage import UsageError
 
 
@@ -68,7 +69,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..simulation.demo import run_demo
 
     return run_demo(out_dir=Path(args.out), frames=args.frames, width=848 if args.full_resolution else args.width,
-                    seed=args.seed, depth_unit_mm=args.depth_unit_mm)
+                    seed=args.seed, depth_unit_mm=args.depth_unit_mm, verbosity=verbosity(args))
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -112,8 +113,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("no output file; pass -o FILE.h5 (or set output in the experiment file)")
     p = exp.plan.params
     devices = open_devices(camera, stage, tilt_deg=p.get("tilt_deg", 0.0), distance_m=p.get("distance_m", 1.0))
-    print(f"rig: {exp.plan.name} experiment, camera {camera}, stage {stage} -> {output}", file=sys.stderr)
-    result = Runner(devices.camera, devices.stage, progress=TerminalProgress(), sleep=devices.sleep).run(
+    quiet = verbosity(args) == QUIET
+    if not quiet:
+        print(f"rig: {exp.plan.name} experiment, camera {camera}, stage {stage} -> {output}", file=sys.stderr)
+    result = Runner(devices.camera, devices.stage, progress=None if quiet else TerminalProgress(), sleep=devices.sleep).run(
         exp.plan, output, resume=args.resume)
     print(f"recorded {len(result.recorded)} stops ({len(result.skipped)} already there) in {result.path}")
     return 0
@@ -147,7 +150,8 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     from ..reports.progress import TerminalProgress
 
-    out = import_folder(args.folder, args.output, import_overrides(args), progress=TerminalProgress())
+    progress = None if verbosity(args) == QUIET else TerminalProgress()
+    out = import_folder(args.folder, args.output, import_overrides(args), progress=progress)
     print(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})")
     return 0
 

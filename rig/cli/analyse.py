@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
+import numpy as np
+
+from .options import EXIT_UNDETERMINED, refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -16,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
     p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--plot", help="write a sigma-vs-range PNG here")
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--table", metavar="STOPS.csv", help="write the per-stop table here (range, pixels, samples, "
+                                                       "measured and model sigma, fill rate; CSV)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     _add_effects_arg(p)
@@ -25,7 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", help="fit several models and show their errors side by side")
     p.add_argument("recording")
     p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
+    p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
+    p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_compare)
 
@@ -33,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("recording")
     p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
     p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_diagnose)
 
@@ -78,129 +87,220 @@ def _parse_model(text: str, catalogue=None):
         raise UsageError(str(e)) from None
 
 
-def power_law_json(fit) -> dict:
-    """`rig fit --json` of the paper's power law (keys as before the layout change)."""
-    return {"k": fit.k, "lam": fit.lam, "se_k": fit.se_k, "se_lam": fit.se_lam, "corr": fit.corr, "loglik": fit.loglik,
-            "n_pixels": fit.n_pixels, "n_samples": fit.n_samples, "dof": fit.dof, "z_min_m": fit.z_min_m,
-            "z_max_m": fit.z_max_m, "lam_fixed": fit.lam_fixed}
+def progress_line(args: argparse.Namespace, title: str):
+    """The terminal's progress line for this command (silent when stderr is not a terminal, or with -q)."""
+    from ..reports.work_progress import WorkProgressLine
+
+    return WorkProgressLine(title, verbosity(args))
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
     from ..analysis import fit_recording
+    from ..diagnosis import headline
+    from ..models.progress import ProgressCounter
 
+    refuse_unwritable(args.plot, "--plot")
+    refuse_unwritable(args.table, "--table")
     if args.model:
         return _fit_model(args)
     if args.effects:
         catalogue_of(args)  # a broken effects file is an error even when no model uses it yet
-    try:
-        r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    with progress_line(args, "rig fit") as progress:
+        counter = ProgressCounter(progress, 3)
+        try:
+            r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max, counter=counter)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        counter.step("headline error: every statistic the paper's fit predicts")
+        h = headline(r.fit, r.samples.positive_variance())
+        counter.finish()
     if args.json:
-        print(json.dumps({**power_law_json(r.fit), "notes": r.notes}, indent=2))
+        from ..reports.result_json import document, dumps, fit_json
+
+        print(dumps(document("fit", args.recording, r.notes, [fit_json(r.fit, h)], best=r.fit.model.name,
+                             window_m=(args.z_min, args.z_max))))
     else:
         for note in r.notes:
             print(f"note: {note}")
-        from ..diagnosis import headline
-
         mode = "projector on" if r.projector_on else "projector off"
         print(f"{r.path}: {r.protocol}, {mode}")
         print(r.fit.report())
-        print(f"    headline error: {headline(r.fit, r.samples.positive_variance())}")
-        print(f"    (what is missing? rig diagnose {args.recording})")
+        print(f"    headline error: {h}")
+        print(_fix_line(h) or f"    (what is missing? rig diagnose {args.recording})")
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 
         out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
-        print(f"plot: {out}")
-    return 0
+        print(f"plot: {out}", file=sys.stderr if args.json else sys.stdout)  # stdout holds the JSON alone
+    _write_table(args, r.fit, r.samples)
+    return exit_status([h])
 
 
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
+    from ..diagnosis.scores import held_out_folds
+    from ..models.progress import ProgressCounter
 
     model = _parse_model(args.model, catalogue_of(args))
-    d, notes = _model_data(args.recording, args.z_min, args.z_max)
-    try:
-        f = model.fit(d)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    h = headline(f, d)
+    with progress_line(args, "rig fit") as progress:
+        counter = ProgressCounter(progress, 3)
+        counter.step("reading the recording")
+        d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        if not args.no_held_out:
+            counter.expect(2 + len(np.unique(held_out_folds(d))))
+        counter.step(f"fitting {model.name}")
+        try:
+            f = model.fit(d)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        counter.step("headline error: every statistic the model predicts")
+        h = headline(f, d)
+        nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter)
+        counter.finish()
     if args.json:
-        print(json.dumps({"model": model.name, "values": f.values, "errors": f.errors, "loglik": f.loglik,
-                          "bic": f.bic, "headline_error_pct": h.error_pct, "noise_pct": h.noise_pct,
-                          "within_noise": h.within_noise, "notes": notes}, indent=2))
-        return 0
+        from ..reports.result_json import document, dumps, fit_json
+
+        print(dumps(document("fit", args.recording, notes, [fit_json(f, h, held_out_nll=nll)], best=model.name,
+                             window_m=(args.z_min, args.z_max))))
+        _write_table(args, f, d)
+        return exit_status([h])
     for note in notes:
         print(f"note: {note}")
     print(f.report())
     print(f"    headline error: {h}")
-    if not args.no_held_out:
-        print(f"    held-out negative log-likelihood per degree of freedom: {held_out_nll(model, d, f):.6f}")
-    return 0
+    if not h.determined:
+        print(_fix_line(h))
+    if nll is not None:
+        print(f"    held-out negative log-likelihood per degree of freedom: {nll:.6f}")
+    _write_table(args, f, d)
+    return exit_status([h])
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
+    from ..diagnosis.scores import held_out_folds
+    from ..models.progress import ProgressCounter
 
-    d, notes = _model_data(args.recording)
-    for note in notes:
-        print(f"note: {note}")
     cat = catalogue_of(args)
     models = [_parse_model(m, cat) for m in args.models.split(",")]
     rows = []
-    for m in models:
-        try:
-            f = m.fit(d)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
-        rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f)))
+    with progress_line(args, "rig compare") as progress:
+        counter = ProgressCounter(progress, 1 + 2 * len(models))
+        counter.step("reading the recording")
+        d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        if not args.no_held_out:
+            counter.expect(len(models) * (2 + len(np.unique(held_out_folds(d)))))
+        for m in models:
+            counter.step(f"fitting {m.name}")
+            try:
+                f = m.fit(d)
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+            counter.step(f"headline error of {m.name}")
+            rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f, counter=counter)))
+        counter.finish()
+    best = min(rows, key=lambda r: r[1].bic)
+    if args.json:
+        from ..reports.result_json import document, dumps, fit_json
+
+        print(dumps(document("compare", args.recording, notes, [fit_json(f, h, held_out_nll=nll) for _, f, h, nll in rows],
+                             best=best[0].name, window_m=(args.z_min, args.z_max))))
+        return exit_status([h for _, _, h, _ in rows])
+    for note in notes:
+        print(f"note: {note}")
     base_bic = rows[0][1].bic
     w = max(len(m.name) for m, *_ in rows) + 2
-    print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>13} {'dBIC':>12} {'held-out NLL/dof':>17}")
+    print(f"{'model':<{w}} {'free':>4} {'headline error':>15} {'noise alone':>12} {'within noise':>14} {'dBIC':>12} {'held-out NLL/dof':>17}")
     for m, f, h, nll in rows:
-        print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {('yes' if h.within_noise else 'no'):>13} "
+        within = {"within noise": "yes", "beyond noise": "no"}.get(h.state, h.state)
+        print(f"{m.name:<{w}} {f.n_free:>4} {h.error_pct:>13.2f} % {h.noise_pct:>10.2f} % {within:>14} "
               f"{f.bic - base_bic:>12.1f} {'' if nll is None else f'{nll:.6f}':>17}")
-    best = min(rows, key=lambda r: r[1].bic)
     print(f"\nLowest BIC: {best[0].name}; its headline error is {best[2]}.")
-    return 0
+    undetermined = [h for _, _, h, _ in rows if not h.determined]
+    if undetermined:
+        print(f"{', '.join(m.name for m, _, h, _ in rows if not h.determined)}: {undetermined[0].lambda_status.reason}.")
+        print(_fix_line(undetermined[0]).strip())
+    return exit_status([h for _, _, h, _ in rows])
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose, render_text
+    from ..models.progress import WorkProgress
 
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
     _check_writable(out)
-    d, notes = _model_data(args.recording)
     model = _parse_model(args.model, cat) if args.model else None
-    try:
-        diag = diagnose(d, model, source=args.recording, catalogue=cat)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    with progress_line(args, "rig diagnose") as progress:
+        progress(WorkProgress("reading the recording", 0, 1))
+        d, notes = _model_data(args.recording)
+        steps = [0]
+
+        def fits(p: WorkProgress) -> None:  # the diagnosis's own steps; the report is one more
+            steps[0] = p.total
+            if not p.finished:
+                progress(p)
+
+        try:
+            diag = diagnose(d, model, source=args.recording, catalogue=cat, progress=fits)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        progress(WorkProgress("writing the plots and the report", steps[0], steps[0] + 1))
+        plots, page = _write_report(diag, out, args.recording)
+        progress(WorkProgress("done", steps[0] + 1, steps[0] + 1, finished=True))
+    status = exit_status([st.headline for st in diag.steps])
+    if args.json:
+        from ..reports.result_json import diagnosis_json, document, dumps
+
+        fits, part = diagnosis_json(diag, plots, page)
+        print(dumps(document("diagnose", args.recording, notes, fits, best=diag.final_fit.model.name, diagnosis=part)))
+        return status
     for note in notes:
         print(f"note: {note}")
     print(render_text(diag))
-    plots, page = _write_report(diag, out)
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
-    return 0
+    return status
 
 
-def _write_report(diag, out: Path) -> tuple[list[Path], Path]:
+def _write_table(args: argparse.Namespace, fit, d) -> None:
+    """`--table FILE`: the per-stop table of `fit` on its pixels `d` (rig.reports.stop_table)."""
+    if not args.table:
+        return
+    from ..reports.stop_table import stop_rows, write_stop_table
+
+    out = write_stop_table(stop_rows(fit, d), args.table)
+    print(f"table: {out}", file=sys.stderr if args.json else sys.stdout)
+
+
+def exit_status(headlines) -> int:
+    """0, or EXIT_UNDETERMINED when a model the command fitted has a lambda the data do not determine."""
+    return EXIT_UNDETERMINED if any(not h.determined for h in headlines) else 0
+
+
+def _fix_line(h) -> str | None:
+    """The way to a determined lambda, as a line of the text report; None when it is determined."""
+    return None if h.determined else f"    to determine lambda: {h.lambda_status.fix}"
+
+
+def _write_report(diag, out: Path, recording: str) -> tuple[list[Path], Path]:
     """Plots and page are made in a folder beside `out`, then moved in file by file (each move atomic), and
     the previous run's diagnosis files that this one did not make are removed: a diagnosis killed while it
     works leaves the previous report whole, never a mix of old and new plots."""
     import os
     import shutil
 
+    from protocols.recording import utc_now
+
+    from .. import package_version
     from ..reports.diagnosis_html import write_html
     from ..reports.diagnosis_plots import write_plots
+    from ..reports.run_info import run_info
 
     out.mkdir(parents=True, exist_ok=True)
     work = out.parent / f".{out.name}.{os.getpid()}.writing"
     try:
         plots = write_plots(diag, work)
-        page = write_html(diag, plots, work)
+        page = write_html(diag, plots, work, run_info(recording, utc_now(), package_version()))
         made = [*plots, page]
         for old in out.glob("diagnosis*"):
             if old.is_file() and old.name not in {p.name for p in made}:
@@ -213,9 +313,10 @@ def _write_report(diag, out: Path) -> tuple[list[Path], Path]:
 
 
 def _check_writable(folder: Path) -> None:
-    """Refuse before the work, not after it, when the report cannot be written."""
-    probe = folder if folder.exists() else next((p for p in folder.parents if p.exists()), Path("."))
-    import os
+    """Refuse before the work, not after it, when the report cannot be written (into `folder`, through a
+    working folder beside it)."""
+    from ..reports.writable import output_problem
 
-    if not os.access(probe, os.W_OK):
-        raise UsageError(f"cannot write the report to {folder} ({probe} is not writable); pass --out to a writable folder")
+    problem = output_problem(folder, folder=True) or output_problem(folder.parent, folder=True)
+    if problem:
+        raise UsageError(f"cannot write the report to {folder}: {problem}; pass --out a folder you can write to")

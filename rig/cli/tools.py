@@ -12,6 +12,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TextIO
 
+from .options import refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -64,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-soft-limits", action="store_true", help="grbl: run into the end switches (ALARM:1) instead")
     p.add_argument("--no-homing", action="store_true", help="grbl: homing disabled ($22=0); start unlocked")
     p.add_argument("--microstep-um", type=float, default=0.1905, help="zaber: microstep size (default 0.1905)")
-    p.add_argument("-v", "--verbose", action="store_true", help="print every command and reply")
+    # -v (every command's -v, rig.cli.options) prints every command and reply
     p.set_defaults(func=cmd_stage_sim)
 
 
@@ -135,10 +136,13 @@ def cmd_paper_windows(args: argparse.Namespace) -> int:
 def cmd_validate(args: argparse.Namespace) -> int:
     from ..simulation.validation import summary, validate
 
+    refuse_unwritable(args.json, "--json")
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    with tempfile.TemporaryDirectory() as tmp:
-        trials = validate(effects, seeds, Path(tmp), jobs=args.jobs)
+    from ..reports.work_progress import WorkProgressLine
+
+    with tempfile.TemporaryDirectory() as tmp, WorkProgressLine("rig validate-diagnosis", verbosity(args)) as progress:
+        trials = validate(effects, seeds, Path(tmp), out=progress.above(sys.stdout), jobs=args.jobs, progress=progress)
     print()
     print(summary(trials))
     if args.json:
@@ -151,5 +155,5 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def cmd_stage_sim(args: argparse.Namespace) -> int:
     from fakes.stage_sim import serve
 
-    return serve(args.kind, verbose=args.verbose, travel_mm=args.travel_mm, speed_mm_s=args.speed_mm_s,
+    return serve(args.kind, verbose=bool(args.verbose), travel_mm=args.travel_mm, speed_mm_s=args.speed_mm_s,
                  soft_limits=not args.no_soft_limits, homing=not args.no_homing, microstep_um=args.microstep_um)

@@ -84,6 +84,8 @@ class Check:
         return int(np.argmax(np.abs(self.z)))
 
     def describe_worst(self) -> str:
+        if not len(self.z):  # e.g. kurtosis in a one-stop recording whose windows are all too small
+            return f"{self.name}: no bin to compare"
         i = self.worst()
         fmt = (lambda v: f"{1000 * v:.4g} mm") if self.quantity == "sigma" else (lambda v: f"{v:.4g}")
         return (f"{self.quantity} at {self.labels[i]}: {fmt(self.measured[i])} measured, {fmt(self.predicted[i])} "

@@ -10,7 +10,9 @@ se(ln sigma) = 0.5 * sqrt(sum nu^2 (2/nu + excess/n)) / sum nu, with the bin's m
 kurtosis. The headline bins are "within noise" when sum (ln ratio / se)^2 is consistent with a
 chi^2 of (bins - free parameters) degrees of freedom (p >= 0.001); the model is within noise
 when, beyond that, every other statistic it predicts is too (`rig.diagnosis.consistency`), and
-the headline names the worst one that is not.
+the headline names the worst one that is not. A model that fits lambda to data that do not
+determine it (`rig.models.determinacy`: fewer than three ranges, or a span under 1.5 x) is not
+judged at all: its verdict says "lambda NOT DETERMINED" and why.
 
 Held-out: leave one stop out (or, for a single-stop recording, one of four vertical strips
 of the image), fit on the rest, and score the left-out pixels; reported as negative
@@ -25,6 +27,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..models import Model, ModelData, ModelFit
+from ..models.determinacy import LambdaStatus, lambda_status
+from ..models.progress import ProgressCounter
 from .consistency import ALPHA, Consistency
 from .residuals import residuals
 
@@ -40,6 +44,20 @@ class Headline:
     p_value: float
     bins: int
     consistency: Consistency | None = None
+    #: does the data determine lambda (when the model fits it)? A fit whose lambda is not determined is
+    #: never called "within noise" in words (`verdict`, `state`), whatever the statistics say
+    lambda_status: LambdaStatus | None = None
+
+    @property
+    def determined(self) -> bool:
+        return self.lambda_status is None or self.lambda_status.determined
+
+    @property
+    def state(self) -> str:
+        """In two words: "within noise", "beyond noise", or "not determined" (lambda free, the data too narrow)."""
+        if not self.determined:
+            return "not determined"
+        return "within noise" if self.within_noise else "beyond noise"
 
     @property
     def sigma_within_noise(self) -> bool:
@@ -60,6 +78,8 @@ class Headline:
         return max(0.0, self.chi2 - self.dof) + extra
 
     def verdict(self) -> str:
+        if not self.determined:
+            return f"lambda NOT DETERMINED: {self.lambda_status.reason.removeprefix('lambda is not determined: ')}"
         if self.within_noise:
             return "every statistic within noise" if self.consistency is not None else "within noise"
         worst = self.consistency.worst(extra=1) if self.consistency is not None else None
@@ -91,20 +111,29 @@ def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
         noise_pct=100 * float(np.sqrt(np.mean(b.se_log**2))),
         chi2=stat, dof=dof, p_value=float(chi2.sf(stat, dof)), bins=len(b.log_ratio),
         consistency=r.consistency if checks else None,
+        lambda_status=lambda_status(d, free=not fit.lam_fixed),
     )
 
 
-def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None) -> float:
-    """Negative log-likelihood per degree of freedom on left-out stops (or image strips)."""
-    stops = np.unique(d.stop)
-    if len(stops) >= 3:
-        groups = d.stop
-    else:
-        edges = np.quantile(d.u_px, [0.25, 0.5, 0.75])
-        groups = np.digitize(d.u_px, edges)
+def held_out_folds(d: ModelData) -> np.ndarray:
+    """The part each pixel is left out with: its stop, or (fewer than three stops) one of four vertical strips."""
+    if len(np.unique(d.stop)) >= 3:
+        return d.stop
+    edges = np.quantile(d.u_px, [0.25, 0.5, 0.75])
+    return np.digitize(d.u_px, edges)
+
+
+def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
+                 counter: ProgressCounter | None = None) -> float:
+    """Negative log-likelihood per degree of freedom on left-out stops (or image strips); `counter`, if given,
+    is told of each refit (`rig.models.progress`)."""
+    groups = held_out_folds(d)
     start = full.values if full is not None else None
     total, dof = 0.0, 0.0
-    for g in np.unique(groups):
+    parts = np.unique(groups)
+    for i, g in enumerate(parts):
+        if counter is not None:
+            counter.step(f"held-out score of {model.name}: part {i + 1} of {len(parts)} left out")
         test = groups == g
         train_d, test_d = d.select(~test), d.select(test)
         f = model.fit(train_d, start=start)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..models.determinacy import lambda_status
 from .verdict import Diagnosis
 
 
@@ -13,7 +14,7 @@ def render_text(diag: Diagnosis) -> str:
              "", diag.model_fit.report(), "",
              f"Headline error of {diag.model_fit.model.name}: {diag.model_headline}",
              f"(for reference, the paper's free power law: lambda = {diag.power_law_fit.values['lambda']:.4f} "
-             f"+/- {diag.power_law_fit.errors.get('lambda', float('nan')):.2g})", ""]
+             f"+/- {diag.power_law_fit.errors.get('lambda', float('nan')):.2g}{_undetermined(diag)})", ""]
     r = diag.residuals
     lines.append(f"Where {diag.model_fit.model.name} fails (measured / predicted sigma; * = off by more than 3 standard errors):")
     for title, b in (("by range", r.by_range), ("by radius from the image centre", r.by_radius),
@@ -42,13 +43,13 @@ def render_text(diag: Diagnosis) -> str:
     for st in diag.steps:
         change = "start" if st.added is None else f"+ {st.added.effect.name} (dBIC {st.added.dbic:.1f})"
         lines.append(f"  {change:<36} {st.name:<48} headline {st.headline.error_pct:6.2f} %  "
-                     f"{'within noise' if st.headline.within_noise else 'beyond noise'}")
+                     f"{st.headline.state}")
     u = diag.unexplained
     if u is not None:
         for st in u.steps:
             tried = ", ".join(f"{t.covariate} {t.dbic:.0f}" if t.fit is not None else f"{t.covariate} (n/a)" for t in st.trials)
             lines.append(f"  {'+ empirical(' + st.covariate + ')':<36} {st.fit.model.name:<48} headline "
-                         f"{st.headline.error_pct:6.2f} %  {'within noise' if st.headline.within_noise else 'beyond noise'}"
+                         f"{st.headline.error_pct:6.2f} %  {st.headline.state}"
                          f"   (for {st.family}; dBIC of the shapes tried: {tried})")
     lines += ["", diag.summary()]
     if len(diag.steps) > 1:
@@ -57,3 +58,9 @@ def render_text(diag: Diagnosis) -> str:
         lines += ["", u.final_fit.report()]
     lines += ["", f"Final: {diag.final_fit.model.name}: headline error {diag.final_headline}"]
     return "\n".join(lines)
+
+
+def _undetermined(diag: Diagnosis) -> str:
+    """", NOT DETERMINED: why" when the recording cannot determine the power law's lambda (rig.models.determinacy)."""
+    status = lambda_status(diag.data)
+    return "" if status.determined else f"; NOT DETERMINED: {status.reason.removeprefix('lambda is not determined: ')}"

@@ -12,6 +12,9 @@ from pathlib import Path
 
 from drivers.camera import CameraSettings
 from protocols import Runner, perpendicular
+from protocols.recording import utc_now
+
+from .. import package_version
 
 from ..analysis import fit_recording
 from ..devices import open_devices
@@ -20,13 +23,17 @@ from ..models import ModelData
 from ..reports.diagnosis_html import write_html
 from ..reports.diagnosis_plots import write_plots
 from ..reports.progress import TerminalProgress
+from ..reports.run_info import run_info
 from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 from ..reports.tables import fit_table
+from ..reports.work_progress import WorkProgressLine
 
 MODES = (("active", True, "tab:red"), ("passive", False, "tab:blue"))
 
 
-def run_demo(out_dir: Path, *, frames: int = 300, width: int = 424, seed: int = 1, depth_unit_mm: float = 0.1) -> int:
+def run_demo(out_dir: Path, *, frames: int = 300, width: int = 424, seed: int = 1, depth_unit_mm: float = 0.1,
+             verbosity: int = 0) -> int:
+    """`verbosity`: of the diagnosis's progress line on stderr (rig.reports.work_progress; -1 silences it)."""
     t0 = time.monotonic()
     out_dir.mkdir(parents=True, exist_ok=True)
     height = round(width * 480 / 848)
@@ -67,7 +74,7 @@ def run_demo(out_dir: Path, *, frames: int = 300, width: int = 424, seed: int = 
                   f" {s.measured.z_m[0]:.2f} m, which flattens the curve.")
     plot = plot_sigma_vs_range(series, out_dir / "sigma-vs-range.png",
                                title="Simulated D435: range error, projector on and off")
-    loop_files = _diagnosis_loop(out_dir, seed=seed)
+    loop_files = _diagnosis_loop(out_dir, seed=seed, verbosity=verbosity)
     print(f"\nFiles (in {out_dir.resolve()}):")
     for mode, _, _ in MODES:
         print(f"  recording: {out_dir / f'perpendicular-{mode}.h5'}")
@@ -85,7 +92,7 @@ def run_demo(out_dir: Path, *, frames: int = 300, width: int = 424, seed: int = 
 DEMO_NOISE_FLOOR_PX = 0.06
 
 
-def _diagnosis_loop(out_dir: Path, *, seed: int) -> list[tuple[str, Path]]:
+def _diagnosis_loop(out_dir: Path, *, seed: int, verbosity: int = 0) -> list[tuple[str, Path]]:
     """Record a camera with a noise floor, diagnose it blind, add the effect it names, show the error fall."""
     print("\nThe loop: a camera whose noise has something the paper's model leaves out.")
     print("  Simulated like the paper's R200 runs (106x60 px, 100 frames a stop, projector on); rig is not told what.")
@@ -94,9 +101,10 @@ def _diagnosis_loop(out_dir: Path, *, seed: int) -> list[tuple[str, Path]]:
         path.unlink()
     devices = open_devices(f"fake:width=106,height=60,depth_unit_mm=0.05,seed={seed + 7},"
                            f"effects=noise_floor(sigma_px={DEMO_NOISE_FLOOR_PX})", "fake:")
-    Runner(devices.camera, devices.stage, sleep=devices.sleep).run(
+    Runner(devices.camera, devices.stage, progress=TerminalProgress(sys.stdout, "  "), sleep=devices.sleep).run(
         perpendicular(frames_per_stop=100, projector_on=True, ambient_frames=3), path)
-    diag = diagnose(ModelData.from_recording(path), source=str(path), second_round=False)
+    with WorkProgressLine("rig demo: diagnosing", verbosity) as progress:
+        diag = diagnose(ModelData.from_recording(path), source=str(path), second_round=False, progress=progress)
     pl = diag.power_law_fit
     print(f"  The paper's power law fits lambda = {pl.values['lambda']:.3f} +/- {pl.errors['lambda']:.1g} "
           "(the paper measured 2.4-2.6 and blamed the noise floor).")
@@ -110,5 +118,5 @@ def _diagnosis_loop(out_dir: Path, *, seed: int) -> list[tuple[str, Path]]:
                       f"(simulated: {DEMO_NOISE_FLOOR_PX * 106 / 848:.4g} px at this image width)")
     report_dir = out_dir / "diagnosis"
     plots = write_plots(diag, report_dir)
-    page = write_html(diag, plots, report_dir)
+    page = write_html(diag, plots, report_dir, run_info(path, utc_now(), package_version()))
     return [("recording:", path), ("report:", page)] + [("plot:", p) for p in plots]

@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
+from ..models.progress import ProgressFn, WorkProgress
+
 from ..diagnosis import diagnose
 from ..models import ModelData
 from .scenarios import ALL_SCENARIOS, expected, hidden_scenario, record_scenario
@@ -102,21 +104,30 @@ def _line(t: Trial) -> str:
 
 
 def validate(effects: list[str], seeds: list[int], workdir: Path, out: TextIO = sys.stdout,
-             jobs: int | None = None) -> list[Trial]:
-    """Run every (effect, seed) trial, `jobs` at a time; return them in order."""
+             jobs: int | None = None, progress: ProgressFn | None = None) -> list[Trial]:
+    """Run every (effect, seed) trial, `jobs` at a time; return them in order. `progress` is told as each trial
+    ends (`rig.models.progress`)."""
     jobs = jobs or os.cpu_count() or 1
     todo = [(e, s) for e in effects for s in seeds]
     trials: dict[tuple[str, int], Trial] = {}
+
+    def done(t: Trial) -> None:
+        print(_line(t), file=out, flush=True)
+        if progress is not None:
+            progress(WorkProgress(f"{t.effect} seed {t.seed} done", len(trials), len(todo), finished=len(trials) == len(todo)))
+
+    if progress is not None:
+        progress(WorkProgress(f"{len(todo)} trials, {min(jobs, len(todo))} at a time", 0, len(todo)))
     if jobs <= 1:
         for e, s in todo:
             trials[(e, s)] = t = run_trial(e, s, workdir)
-            print(_line(t), file=out, flush=True)
+            done(t)
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             futures = {pool.submit(run_trial, e, s, workdir): (e, s) for e, s in todo}
             for fut in as_completed(futures):
                 trials[futures[fut]] = t = fut.result()
-                print(_line(t), file=out, flush=True)
+                done(t)
     return [trials[k] for k in todo]
 
 
