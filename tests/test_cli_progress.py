@@ -88,7 +88,7 @@ def test_fit_shows_its_phases_and_verbose_lists_them_with_times(recording):
     lines = verbose.stderr.splitlines()
     assert [re.sub(r" \(\d+\.\d s\)$", "", ln) for ln in lines[:2]] == ["rig fit: reading the recording",
                                                                         "rig fit: fitting k and lambda"]
-    assert re.fullmatch(r"rig fit: done after \d+\.\d s", lines[-1]) and len(lines) == 5
+    assert re.fullmatch(r"rig fit: done after \d+\.\d s", lines[-1]) and len(lines) == 4
 
 
 def test_time_left_is_the_time_per_finished_step_times_the_steps_to_come():
