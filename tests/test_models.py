@@ -78,3 +78,19 @@ def test_effects_that_need_the_projector_refuse_passive_data(tmp_path):
     d = ModelData.from_recording(path)
     with pytest.raises(ValueError, match="slant_range needs the projector on"):
         (passive + slant_range).fit(d)
+
+
+def test_the_empirical_shape_is_scipys_pchip():
+    """The empirical terms' curve (evaluated directly, for speed) against scipy's PchipInterpolator, on random
+    knots and values, flat runs and sign changes included."""
+    from scipy.interpolate import PchipInterpolator
+
+    from rig.models.empirical import _smooth
+
+    rng = np.random.default_rng(1)
+    for _ in range(500):
+        knots = np.cumsum(rng.uniform(0.05, 1.0, rng.integers(3, 9)))
+        values = np.round(rng.normal(0, 1, len(knots)), int(rng.integers(0, 3)))
+        x = rng.uniform(knots[0] - 1, knots[-1] + 1, 100)
+        want = PchipInterpolator(knots, values, extrapolate=False)(np.clip(x, knots[0], knots[-1]))
+        np.testing.assert_allclose(_smooth(knots, values, x), want, rtol=0, atol=1e-12)

@@ -14,7 +14,7 @@ samples were all equal, as `from_recording` does.
 Covariates (brightness, incidence, ambient light, position, drift, fill) are computed when first
 used, from the per-stop sources the recording gave (`rig.models.covariates.StopSource`), and
 kept; data built by hand pass them in. Rows of one stop are contiguous, so the work that visits
-every pixel can go stop by stop (`chunks`), with arrays the size of one stop.
+every pixel can go a few stops at a time (`chunks`), with arrays the size of about one stop.
 """
 
 from __future__ import annotations
@@ -30,8 +30,11 @@ from protocols.recording import CameraCalibration
 from . import shape_statistics
 from .covariates import StopSource, covariate_rows
 from .loading import BRIGHTNESS_WINDOW_PX, read_rows
+from .rounding import grid_offset
 #: range windows of the kurtosis term and of the diagnosis (m)
 RANGE_BIN_M = 0.25
+#: rows of the chunks work over every pixel goes in (whole stops; about a full-resolution stop)
+CHUNK_ROWS = 400_000
 
 
 @dataclass(frozen=True)
@@ -56,7 +59,7 @@ class StopTable:
 LAZY = ("ir", "fill", "rho2", "cos_inc", "ambient_ratio", "drift_var_m2", "projector_on", "x_norm", "y_norm")
 #: per-pixel quantities derived from the data alone, cached, and handed to chunks and selections as slices
 DERIVED = ("nu", "s2_m2", "neighbour_variance", "pixel_kurtosis", "z0_m", "range_group", "kurtosis_usable",
-           "excess_measured", "gamma_shape")
+           "excess_measured", "gamma_shape", "grid_offset")
 
 
 class ModelData:
@@ -160,14 +163,18 @@ class ModelData:
         return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
     def chunks(self) -> Iterator["ModelData"]:
-        """The data stop by stop (views, with every quantity computed so far; what is computed in a chunk
-        is the chunk's own). Data whose rows are not in stop order come as one chunk, themselves."""
+        """The data in runs of whole stops of about CHUNK_ROWS rows (views, with every quantity computed so far;
+        what is computed in a chunk is the chunk's own). Small data, or data whose rows are not in stop order,
+        come as one chunk, themselves."""
         slices = self.stop_slices()
-        if slices is None or len(slices) <= 1:
+        if slices is None or len(self) <= CHUNK_ROWS:
             yield self
             return
-        for sl in slices:
-            yield self._taken(sl, derived=True)
+        start = 0
+        for i, sl in enumerate(slices):
+            if sl.stop - start >= CHUNK_ROWS or i == len(slices) - 1:
+                yield self._taken(slice(start, sl.stop), derived=True)
+                start = sl.stop
 
     # -- sizes -----------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -237,6 +244,12 @@ class ModelData:
         stop_pooled = np.bincount(self.stop, weights=self.m2_m2) / np.maximum(np.bincount(self.stop, weights=self.nu), 1e-300)
         v = np.where(np.isfinite(v), v, stop_pooled[self.stop])
         return self.z_m / (1.0 + v / self.z_m**2)
+
+    @cached_property
+    def grid_offset(self) -> np.ndarray:
+        """Where each pixel's measured mean sits between two depth levels: its offset from the nearest, in units of
+        the depth unit, in [-1/2, 1/2] (`rig.models.rounding`)."""
+        return grid_offset(self.z_m / self.depth_unit_m)
 
     def disparity_to_range(self, var_px2: np.ndarray | float) -> np.ndarray:
         """Variance in px^2 of disparity -> m^2 of range: (Z^2 / (f b))^2 var_d (paper, eq. error_prop_unassisted)."""

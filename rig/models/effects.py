@@ -16,7 +16,7 @@ from .data import ModelData
 from .file_physics import MAX_DEPTH_UNITS, truncated_normal_moments
 from .parameters import Param
 from .prediction import EffectStage, Prediction
-from .rounding import expected_sample_variance, grid_offset
+from .rounding import expected_sample_variance
 
 
 class Effect(Component):
@@ -207,7 +207,7 @@ class Quantization(Effect):
 
     name = "quantization"
     stage = EffectStage.QUANTIZE
-    groupable = False  # each pixel's own offset from the depth grid
+    by_grid_offset = True  # its prediction turns on each pixel's own place on the depth grid (rig.models.grouping)
     params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
     signature = "the error levels off at short range near the size of the depth unit"
     explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "
@@ -218,7 +218,7 @@ class Quantization(Effect):
         step2 = d.disparity_to_range(p.get("quantization.step_px", 0.0) ** 2)
         var_in = pred.var_m2 + step2 / 12
         s = np.sqrt(var_in) / q
-        var_u, mu4_u = expected_sample_variance(s, grid_offset(d.z_m / q), d.n)
+        var_u, mu4_u = expected_sample_variance(s, d.grid_offset, d.n)
         k4_rounding = (mu4_u - 3 * var_u**2) * q**4 - (step2**2) / 120
         pred.var_m2 = var_u * q**2
         pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding

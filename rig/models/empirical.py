@@ -30,7 +30,6 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 from scipy.special import expit
 
 from .composition import Component
@@ -67,10 +66,46 @@ def empirical(covariate: str) -> Effect:
 
 
 def _smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """A shape-preserving cubic through (knots, values), flat beyond the ends."""
+    """A shape-preserving cubic through (knots, values), flat beyond the ends: scipy's PCHIP (the same slopes,
+    Fritsch-Butland at the interior knots and its three-point rule at the ends), evaluated directly because a
+    fit evaluates it thousands of times on the same few knots."""
+    x = np.clip(x, knots[0], knots[-1])
     if len(knots) < 3:
         return np.interp(x, knots, values)
-    return PchipInterpolator(knots, values, extrapolate=False)(np.clip(x, knots[0], knots[-1]))
+    slopes = _pchip_slopes(np.asarray(knots, dtype=float), np.asarray(values, dtype=float))
+    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
+    h = np.diff(knots)[i]
+    t = (x - knots[i]) / h
+    t2 = t * t
+    t3 = t2 * t
+    return ((2 * t3 - 3 * t2 + 1) * values[i] + (t3 - 2 * t2 + t) * h * slopes[i]
+            + (3 * t2 - 2 * t3) * values[i + 1] + (t3 - t2) * h * slopes[i + 1])
+
+
+def _pchip_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The slopes at the knots of scipy's PchipInterpolator (scipy.interpolate._cubic, _find_derivatives)."""
+    h = np.diff(x)
+    m = np.diff(y) / h
+    d = np.zeros_like(y)
+    sign = np.sign(m)
+    flat = (sign[1:] != sign[:-1]) | (m[1:] == 0) | (m[:-1] == 0)
+    w1, w2 = 2 * h[1:] + h[:-1], h[1:] + 2 * h[:-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        harmonic = (w1 / m[:-1] + w2 / m[1:]) / (w1 + w2)
+        d[1:-1] = np.where(flat, 0.0, 1.0 / harmonic)
+    d[0] = _pchip_end(h[0], h[1], m[0], m[1])
+    d[-1] = _pchip_end(h[-1], h[-2], m[-1], m[-2])
+    return d
+
+
+def _pchip_end(h0: float, h1: float, m0: float, m1: float) -> float:
+    """scipy's one-sided three-point slope at an end, kept shape-preserving."""
+    d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+    if np.sign(d) != np.sign(m0):
+        return 0.0
+    if np.sign(m0) != np.sign(m1) and abs(d) > abs(3 * m0):
+        return 3 * m0
+    return d
 
 
 def _spaced_knots(c: np.ndarray, n: int) -> np.ndarray:

@@ -23,7 +23,9 @@ MAX_DEPTH_UNITS = 65535
 SQRT_2PI = math.sqrt(2 * math.pi)
 #: pixels whose disparity error reaches the format's end within this many standard deviations get the exact transform
 NEAR_LIMIT_SIGMA = 6.0
-_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(64)
+#: Gauss-Legendre nodes of the exact transform: 32 give the variance and fourth moment within 1e-9 of 64's
+#: wherever the cut falls (checked from 0.5 to 6 standard deviations)
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(32)
 
 
 def range_transform(pred: Prediction, d: ModelData) -> None:

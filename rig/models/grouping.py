@@ -18,8 +18,10 @@ third-order terms otherwise: a second-order expansion of the likelihood about ea
 standard error). Nodes carry positions and ranges, so covariates that are formulas of them (radius,
 incidence, drift) are exact at the node, and image covariates (brightness, ambient) are read there.
 
-Effects that depend on a pixel's own grid offset from the depth unit (quantization) are not smooth
-within a tile: models with them are fitted on the pixels themselves (`Effect.groupable`).
+Rounding to the depth unit (the quantization effect) also turns on where each pixel's mean sits between two
+depth levels, which is not smooth within a tile: for models with it, the pixels whose spread is under
+OFFSET_SPREAD depth units (where that matters: above it the rounded variance changes by less than 2e-8 with
+the offset) are kept apart in OFFSET_BINS bins of the offset, and each group's nodes carry its mean offset.
 """
 
 from __future__ import annotations
@@ -35,6 +37,12 @@ from .group_sums import group_sums
 TILES_PER_STOP = 1000
 #: grouping is used only when a tile holds at least this many pixels (below, the nodes save little)
 MIN_TILE_PX = 36
+#: spread (depth units) below which a pixel's rounded variance depends on its mean's offset between levels
+OFFSET_SPREAD = 1.0
+#: bins of the offset's size, over 0 to 1/2 depth unit, for those pixels
+OFFSET_BINS = 50
+#: a pixel whose mean is this many of its standard errors off its tile's plane of range stays a pixel
+OFF_MEAN = 4.0
 
 
 class GroupedData(ModelData):
@@ -64,8 +72,10 @@ def tile_size(d: ModelData) -> int:
     return t if t * t >= MIN_TILE_PX else 0
 
 
-def group(d: ModelData, tile_px: int) -> GroupedData:
-    """Nodes for `d` with tiles of tile_px x tile_px pixels (see the module docstring)."""
+def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData:
+    """Nodes for `d` with tiles of tile_px x tile_px pixels (see the module docstring); with `by_offset`, the
+    pixels of small spread kept apart by their offset between depth levels, which is then a fourth axis of the
+    quadrature. A group of no more pixels than nodes keeps its pixels as they are."""
     from .likelihood import gamma_constant, likelihood_weights, prepare
 
     prepare(d)
@@ -75,46 +85,33 @@ def group(d: ModelData, tile_px: int) -> GroupedData:
     tu, tv = (u // tile_px).astype(np.int64), (v // tile_px).astype(np.int64)
     key = ((d.stop.astype(np.int64) * (int(rg.max() - rg.min()) + 1) + (rg - rg.min())) * (int(tv.max()) + 1) + tv) \
         * (int(tu.max()) + 1) + tu
-    _, tile = np.unique(key, return_inverse=True)
-    lz = np.log(d.z0_m)
-    # the tile's centre (a-weighted), the spread of its positions and the plane of ln Z0 over them
-    _, s = group_sums(tile, [a, a * u, a * v, a * u * u, a * v * v, a * u * v, a * lz, a * u * lz, a * v * lz,
-                             a * np.log(d.z_m / d.z0_m), a * d.n])
-    A = s[:, 0]
-    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
-    suu, svv, suv = s[:, 3] / A - uc * uc, s[:, 4] / A - vc * vc, s[:, 5] / A - uc * vc
-    sul, svl = s[:, 7] / A - uc * lzc, s[:, 8] / A - vc * lzc
-    det = suu * svv - suv * suv
-    ok = det > 1e-12 * np.maximum(suu * svv, 1e-300)
-    gu = np.where(ok, (svv * sul - suv * svl) / np.where(ok, det, 1.0), np.where(suu > 0, sul / np.maximum(suu, 1e-300), 0.0))
-    gv = np.where(ok, (suu * svl - suv * sul) / np.where(ok, det, 1.0), np.where(svv > 0, svl / np.maximum(svv, 1e-300), 0.0))
-    ratio, n_mean = np.exp(s[:, 9] / A), s[:, 10] / A
-    du, dv = u - uc[tile], v - vc[tile]
-    e = lz - lzc[tile] - gu[tile] * du - gv[tile] * dv
-    xi = (du, dv, e)
-    moments = []
-    for w in (a, b, kw, np.ones(len(d))):
-        moments.append(group_sums(tile, [w, *(w * x for x in xi), *(w * x * x for x in xi)])[1])
-    h = np.sqrt(3.0 * moments[0][:, 4:7] / A[:, None])  # (tiles, 3)
-    # 7 nodes per tile: the centre, then -h and +h along each axis
-    steps = np.zeros((7, 3))
-    for i in range(3):
-        steps[1 + 2 * i, i], steps[2 + 2 * i, i] = -1.0, 1.0
-    offset = steps[None, :, :] * h[:, None, :]  # (tiles, 7, 3)
-    node_u = uc[:, None] + offset[:, :, 0]
-    node_v = vc[:, None] + offset[:, :, 1]
-    node_lz = lzc[:, None] + gu[:, None] * offset[:, :, 0] + gv[:, None] * offset[:, :, 1] + offset[:, :, 2]
-    weights = [_node_weights(m, h) for m in moments]
-    first = _first_rows(tile, len(A))  # any pixel of the tile: its stop and range window
-    z0 = np.exp(node_lz).ravel()
-    g = GroupedData(z_m=z0 * np.repeat(ratio, 7), m2_m2=np.full(z0.size, np.nan), m4_m4=np.full(z0.size, np.nan),
-                    n=np.repeat(n_mean, 7), stop=np.repeat(d.stop[first], 7), u_px=node_u.ravel(), v_px=node_v.ravel(),
-                    fb_px_m=d.fb_px_m, depth_unit_m=d.depth_unit_m, n_dropped_zero=d.n_dropped_zero, stops=d.stops,
-                    sources=d.sources, calibration=d.calibration)
-    g.__dict__["z0_m"] = z0
-    g.__dict__["range_group"] = np.repeat(rg[first], 7)
+    offset = np.abs(d.grid_offset)
+    if by_offset:
+        neighbours, _ = d.neighbour_variance
+        spread = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2)) / d.depth_unit_m
+        fbin = np.where(spread < OFFSET_SPREAD, np.minimum((offset * 2 * OFFSET_BINS).astype(np.int64), OFFSET_BINS - 1),
+                        OFFSET_BINS)
+        key = key * (OFFSET_BINS + 1) + fbin
+    _, tile, count = np.unique(key, return_inverse=True, return_counts=True)
+    dims = 4 if by_offset else 3
+    pooled = (count[tile] > 1 + 2 * dims) & ~_mean_off(d, tile, a)
+    _, tile = np.unique(tile[pooled], return_inverse=True)
+    rows = {"a": a, "b": b, "kw": kw, "pw": np.ones(len(d)), "u": u, "v": v, "lz": np.log(d.z0_m),
+            "ratio": d.z_m / d.z0_m, "n": d.n, "offset": offset, "stop": d.stop, "rg": rg}
+    nodes = _nodes({k: x[pooled] for k, x in rows.items()}, tile, dims)
+    alone = ~pooled
+    parts = [nodes, {k: x[alone] for k, x in rows.items()}]
+    parts[1]["z0"] = d.z0_m[alone]
+    out = {k: np.concatenate([p[k] for p in parts]) for k in ("a", "b", "kw", "pw", "u", "v", "z0", "ratio", "n", "offset", "stop", "rg")}
+    g = GroupedData(z_m=out["z0"] * out["ratio"], m2_m2=np.full(len(out["z0"]), np.nan), m4_m4=np.full(len(out["z0"]), np.nan),
+                    n=out["n"], stop=out["stop"], u_px=out["u"], v_px=out["v"], fb_px_m=d.fb_px_m,
+                    depth_unit_m=d.depth_unit_m, n_dropped_zero=d.n_dropped_zero, stops=d.stops, sources=d.sources,
+                    calibration=d.calibration)
+    g.__dict__["z0_m"] = out["z0"]
+    g.__dict__["grid_offset"] = out["offset"]
+    g.__dict__["range_group"] = out["rg"]
     g.__dict__["kurtosis_by_range"] = d.kurtosis_by_range
-    g.weights = tuple(w.ravel() for w in weights)  # type: ignore[assignment]
+    g.weights = (out["a"], out["b"], out["kw"], out["pw"])
     g.constant = gamma_constant(d)
     _, measured, se = d.fill_by_stop
     g.fill_table = (np.unique(d.stop), measured, se)
@@ -123,15 +120,85 @@ def group(d: ModelData, tile_px: int) -> GroupedData:
     return g
 
 
+def _nodes(r: dict[str, np.ndarray], tile: np.ndarray, dims: int) -> dict[str, np.ndarray]:
+    """The 1 + 2 dims nodes of every group (rows `r` of its pixels, `tile` their group): positions, ranges,
+    offsets and the four kinds of weight (module docstring)."""
+    a, u, v, lz = r["a"], r["u"], r["v"], r["lz"]
+    # the tile's centre (a-weighted), the spread of its positions and the plane of ln Z0 over them
+    _, s = group_sums(tile, [a, a * u, a * v, a * u * u, a * v * v, a * u * v, a * lz, a * u * lz, a * v * lz,
+                             a * np.log(r["ratio"]), a * r["n"], a * r["offset"]])
+    A = s[:, 0]
+    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
+    gu, gv = _plane_slopes(s, A, uc, vc, lzc)
+    offset_mean = s[:, 11] / A
+    du, dv = u - uc[tile], v - vc[tile]
+    e = lz - lzc[tile] - gu[tile] * du - gv[tile] * dv
+    xi = [du, dv, e, r["offset"] - offset_mean[tile]][:dims]
+    moments = [group_sums(tile, [w, *(w * x for x in xi), *(w * x * x for x in xi)])[1]
+               for w in (a, r["b"], r["kw"], r["pw"])]
+    h = np.sqrt(dims * moments[0][:, 1 + dims:] / A[:, None])  # (groups, dims): the a-weights' centre node weighs 0
+    count = 1 + 2 * dims  # the centre, then -h and +h along each axis
+    steps = np.zeros((count, dims))
+    for i in range(dims):
+        steps[1 + 2 * i, i], steps[2 + 2 * i, i] = -1.0, 1.0
+    at = steps[None, :, :] * h[:, None, :]  # (groups, nodes, dims)
+    first = _first_rows(tile, len(A))  # any pixel of the group: its stop and range window
+
+    def each(x: np.ndarray) -> np.ndarray:
+        return np.repeat(x, count)
+
+    wa, wb, wk, wp = (_node_weights(m, h).ravel() for m in moments)
+    return {"a": wa, "b": wb, "kw": wk, "pw": wp, "u": (uc[:, None] + at[:, :, 0]).ravel(),
+            "v": (vc[:, None] + at[:, :, 1]).ravel(),
+            "z0": np.exp(lzc[:, None] + gu[:, None] * at[:, :, 0] + gv[:, None] * at[:, :, 1] + at[:, :, 2]).ravel(),
+            "ratio": each(np.exp(s[:, 9] / A)), "n": each(s[:, 10] / A),
+            "offset": (offset_mean[:, None] + (at[:, :, 3] if dims > 3 else 0.0)).ravel(),
+            "stop": each(r["stop"][first]), "rg": each(r["rg"][first])}
+
+
+def _mean_off(d: ModelData, tile: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Pixels whose measured mean is further from their tile's plane of ln Z0 than OFF_MEAN standard errors of
+    a mean allow: mismatched samples pulled the mean and raised the variance together, so the pixel's range and
+    variance co-vary in a heavy tail a second-order expansion does not follow. They stay pixels."""
+    u, v, lz = d.u_px.astype(np.float64), d.v_px.astype(np.float64), np.log(d.z0_m)
+    e = _plane_residual(tile, a, u, v, lz)
+    neighbours, _ = d.neighbour_variance
+    se_ln = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2) / d.n) / d.z0_m
+    return np.abs(e) > OFF_MEAN * se_ln
+
+
+def _plane_residual(tile: np.ndarray, a: np.ndarray, u: np.ndarray, v: np.ndarray, lz: np.ndarray) -> np.ndarray:
+    """Each pixel's ln Z0 less its tile's a-weighted least-squares plane over (u, v)."""
+    _, s = group_sums(tile, [a, a * u, a * v, a * u * u, a * v * v, a * u * v, a * lz, a * u * lz, a * v * lz])
+    A = s[:, 0]
+    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
+    gu, gv = _plane_slopes(s, A, uc, vc, lzc)
+    return lz - lzc[tile] - gu[tile] * (u - uc[tile]) - gv[tile] * (v - vc[tile])
+
+
+def _plane_slopes(s: np.ndarray, A: np.ndarray, uc: np.ndarray, vc: np.ndarray, lzc: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The slopes of ln Z0 over u and v per tile, from the sums of `_plane_residual` (columns 3-8)."""
+    suu, svv, suv = s[:, 3] / A - uc * uc, s[:, 4] / A - vc * vc, s[:, 5] / A - uc * vc
+    sul, svl = s[:, 7] / A - uc * lzc, s[:, 8] / A - vc * lzc
+    det = suu * svv - suv * suv
+    ok = det > 1e-12 * np.maximum(suu * svv, 1e-300)
+    gu = np.where(ok, (svv * sul - suv * svl) / np.where(ok, det, 1.0), np.where(suu > 0, sul / np.maximum(suu, 1e-300), 0.0))
+    gv = np.where(ok, (suu * svl - suv * sul) / np.where(ok, det, 1.0), np.where(svv > 0, svl / np.maximum(svv, 1e-300), 0.0))
+    return gu, gv
+
+
 def _node_weights(m: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Node weights (tiles, 7) reproducing, per tile, W = m[:, 0], M1 = m[:, 1:4] and M2 = m[:, 4:7] (docstring)."""
-    W, M1, M2 = m[:, 0], m[:, 1:4], m[:, 4:7]
+    """Node weights (tiles, 1 + 2 dims) reproducing, per tile, W = m[:, 0], M1 = m[:, 1:1+dims] and
+    M2 = m[:, 1+dims:] (module docstring)."""
+    dims = h.shape[1]
+    W, M1, M2 = m[:, 0], m[:, 1:1 + dims], m[:, 1 + dims:]
     with np.errstate(divide="ignore", invalid="ignore"):
         spread = np.where(h > 0, M2 / h**2, 0.0)
         tilt = np.where(h > 0, M1 / h, 0.0)
-    out = np.empty((len(W), 7))
+    out = np.empty((len(W), 1 + 2 * dims))
     out[:, 0] = W - spread.sum(axis=1)
-    for i in range(3):
+    for i in range(dims):
         out[:, 1 + 2 * i] = (spread[:, i] - tilt[:, i]) / 2
         out[:, 2 + 2 * i] = (spread[:, i] + tilt[:, i]) / 2
     return out

@@ -28,6 +28,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
 from scipy.special import gammaln
 
 if TYPE_CHECKING:
@@ -95,22 +96,31 @@ class LoglikSums:
         """Add the rows of `d` (a chunk of the data, or all of it) with their predicted variance, fourth
         cumulant and fill; with `constant`, also their data-only Gamma terms."""
         a, b, kw, pw = likelihood_weights(d)
-        self.gamma += float(np.sum(-a * np.log(var) - b / var))
         if constant:
             self.constant += gamma_constant(d)
+        window_pos, stop_pos = self._positions(d)
+        one = np.ones(1)
+        self.gamma += _accumulate(
+            np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float), np.ascontiguousarray(var, dtype=float),
+            one if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, var.shape), dtype=float), k4 is not None,
+            np.atleast_1d(np.asarray(1.0 if fill is None else fill, dtype=float)), np.ascontiguousarray(kw, dtype=float),
+            np.atleast_1d(np.asarray(pw, dtype=float)), window_pos, stop_pos,
+            self.kurt_num, self.kurt_den, self.fill_sum, self.fill_count)
+
+    def _positions(self, d: ModelData) -> tuple[np.ndarray, np.ndarray]:
+        """Each row's index among the measured kurtosis windows (-1: none) and among the stops; kept with `d`."""
+        key = (id(self.windows), len(self.windows), id(self.stops))
+        cached = d.__dict__.get("loglik_positions")
+        if cached is not None and cached[0] == key:
+            return cached[1], cached[2]
         if len(self.windows):
-            excess = 0.0 if k4 is None else np.where(kw > 0, k4 / var**2, 0.0)
-            pos = np.searchsorted(self.windows, d.range_group)
-            pos = np.minimum(pos, len(self.windows) - 1)
-            hit = self.windows[pos] == d.range_group
-            w = np.where(hit, kw, 0.0)
-            self.kurt_num += np.bincount(pos, weights=w * excess, minlength=len(self.windows))
-            self.kurt_den += np.bincount(pos, weights=w, minlength=len(self.windows))
-        pos = np.searchsorted(self.stops, d.stop)
-        f = np.broadcast_to(np.asarray(1.0 if fill is None else fill, dtype=float), var.shape)
-        pix = np.broadcast_to(np.asarray(pw, dtype=float), var.shape)
-        self.fill_sum += np.bincount(pos, weights=f * pix, minlength=len(self.stops))
-        self.fill_count += np.bincount(pos, weights=pix, minlength=len(self.stops))
+            pos = np.minimum(np.searchsorted(self.windows, d.range_group), len(self.windows) - 1)
+            window_pos = np.where(self.windows[pos] == d.range_group, pos, -1).astype(np.int64)
+        else:
+            window_pos = np.full(len(d), -1, np.int64)
+        stop_pos = np.searchsorted(self.stops, d.stop).astype(np.int64)
+        d.__dict__["loglik_positions"] = (key, window_pos, stop_pos)
+        return window_pos, stop_pos
 
     def total(self) -> float:
         kurt = 0.0
@@ -126,13 +136,34 @@ class LoglikSums:
         return self.gamma + self.constant + kurt + fill
 
 
+@njit(cache=True, nogil=True)
+def _accumulate(a, b, var, k4, has_k4, fill, kw, pw, window_pos, stop_pos, kurt_num, kurt_den, fill_sum,
+                fill_count):  # pragma: no cover - compiled
+    """One pass over the rows: returns sum(-a ln var - b / var) and adds into the kurtosis windows' sums of kw
+    k4 / var^2 and kw, and the stops' sums of pixels x fill and pixels (`fill`, `pw`: one value, or one per row)."""
+    gamma = 0.0
+    for i in range(var.size):
+        v = var[i]
+        gamma -= a[i] * np.log(v) + b[i] / v
+        w = window_pos[i]
+        if w >= 0:  # grouped nodes may carry negative weights (a quadrature rule)
+            kurt_den[w] += kw[i]
+            if has_k4:
+                kurt_num[w] += kw[i] * k4[i] / (v * v)
+        p = pw[i] if pw.size > 1 else pw[0]
+        s = stop_pos[i]
+        fill_sum[s] += p * (fill[i] if fill.size > 1 else fill[0])
+        fill_count[s] += p
+    return gamma
+
+
 def _fill_table(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stop indices, measured fill, its standard error), one entry per stop, from the whole data."""
-    own = getattr(d, "fill_table", None)
-    if own is not None:
-        return own
-    _, measured, se = d.fill_by_stop
-    return np.unique(d.stop), measured, se
+    own = d.__dict__.get("fill_table")  # grouped data carry the whole data's
+    if own is None:
+        _, measured, se = d.fill_by_stop
+        own = d.__dict__["fill_table"] = (np.unique(d.stop), measured, se)
+    return own
 
 
 def loglik(d: ModelData, var: np.ndarray, k4: np.ndarray | None, fill: np.ndarray | float | None = None) -> float:
@@ -158,3 +189,4 @@ def prepare(d: ModelData) -> None:
         return
     for name in ("nu", "s2_m2", "z0_m", "range_group", "kurtosis_usable", "gamma_shape", "kurtosis_by_range", "fill_by_stop"):
         getattr(d, name)
+    _fill_table(d)

@@ -22,6 +22,9 @@ if TYPE_CHECKING:
 
 #: the Nelder-Mead polish's budget of objective evaluations, per free parameter (plus one)
 NM_EVALUATIONS_PER_PARAMETER = 100
+#: L-BFGS-B stops when a step changes the (scaled) log-likelihood by less than this relative amount: at the
+#: precision of the arithmetic, because looser stops (1e-12) left flat ridges (outliers) short of the optimum
+FTOL = 1e-15
 
 
 def _to_free(x: float, p: Param) -> float:
@@ -115,7 +118,7 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
             # central differences: forward ones are too coarse on the flat ridges effects make (outliers' fraction
             # against their width), where they stopped L-BFGS-B several standard errors short of the optimum
             r = minimize(objective, y0, method="L-BFGS-B", jac="3-point",
-                         options={"maxiter": 500, "ftol": 1e-15, "gtol": 1e-10})
+                         options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
             # polish with Nelder-Mead when L-BFGS-B stops early on a flat ridge; bounded, because every
             # evaluation visits every pixel (unbounded, a diagnosis could spend an hour polishing candidates)
             if not r.success and len(y0) > 1:
@@ -135,16 +138,19 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
 
 
 def fit_data(model: Model, d: ModelData) -> ModelData:
-    """What `model` is fitted on: the grouped nodes of `d` (made once, kept with `d`) when the data are large
-    enough and every effect of the model is smooth within a tile (`Effect.groupable`); else `d` itself."""
+    """What `model` is fitted on: the grouped nodes of `d` (made once, kept with `d`; apart by grid offset where the
+    model rounds to the depth unit) when the data are large enough and every effect of the model is smooth within
+    a tile (`Effect.groupable`); else `d` itself."""
     from .grouping import group, tile_size
 
     if isinstance(getattr(d, "weights", None), tuple) or not all(getattr(e, "groupable", True) for e in model.effects):
         return d
-    if "grouped" not in d.__dict__:
+    by_offset = any(getattr(e, "by_grid_offset", False) for e in model.effects)
+    key = "grouped_by_offset" if by_offset else "grouped"
+    if key not in d.__dict__:
         t = tile_size(d)
-        d.__dict__["grouped"] = group(d, t) if t else d
-    return d.__dict__["grouped"]
+        d.__dict__[key] = group(d, t, by_offset=by_offset) if t else d
+    return d.__dict__[key]
 
 
 def _paper_fit(d: ModelData, lam: float | None):
@@ -171,25 +177,47 @@ def _standard_errors(model: Model, values: dict[str, float], d: ModelData,
     The Hessian is taken by central differences twice: first with steps of 1e-4 of each value, then with steps of
     a fifth of each parameter's error with the others held, 1 / sqrt(-H_ii) (kept inside the parameters' bounds):
     the curvature at the scale of the uncertainty itself, which is what the errors describe where the likelihood
-    is not quadratic over the first steps (outliers' fraction and width: the first steps gave errors 2x too small)."""
+    is not quadratic over the first steps (outliers' fraction and width: the first steps gave errors 2x too small).
+    With k and lambda both free, k is taken at the data's middle range, k_ref = k z_ref^lambda, as the paper's fit
+    does (`closed_form`): k and lambda are nearly collinear (corr -0.9999 on one tilted stop), so their Hessian is
+    nearly singular and its inverse would magnify the differences' rounding; the covariance is carried back by
+    the Jacobian of k = k_ref z_ref^-lambda."""
     if not names:
         return {}, None
     x = np.array([values[n] for n in names])
     params = dict(model.parameters())
-    room = np.array([min(v - params[n].min, params[n].max - v) for n, v in zip(names, x)])
-    steps = np.array([1e-4 * max(abs(v), 1e-6) for v in x])
+    reparam = "k" in names and "lambda" in names
+    ik, il = (names.index("k"), names.index("lambda")) if reparam else (0, 0)
+    log_ref = _log_middle_range(getattr(d, "full", d)) if reparam else 0.0
 
-    def f(xx: np.ndarray) -> float:
+    def to_x(u: np.ndarray) -> np.ndarray:
+        xx = np.array(u, dtype=float)
+        if reparam:
+            xx[ik] = u[ik] * math.exp(-u[il] * log_ref)
+        return xx
+
+    u0 = np.array(x, dtype=float)
+    if reparam:
+        u0[ik] = x[ik] * math.exp(x[il] * log_ref)
+    room = np.array([np.inf if reparam and i == ik else min(v - params[n].min, params[n].max - v)
+                     for i, (n, v) in enumerate(zip(names, x))])
+    steps = np.array([1e-4 * max(abs(v), 1e-6) for v in u0])
+
+    def f(u: np.ndarray) -> float:
         v = dict(values)
-        v.update(zip(names, xx))
+        v.update(zip(names, to_x(u)))
         return model.loglik(v, d)
 
     se, cov = np.full(len(names), np.nan), None
+    jac = np.eye(len(names))
+    if reparam:
+        jac[ik, ik] = math.exp(-x[il] * log_ref)
+        jac[ik, il] = -x[ik] * log_ref
     with np.errstate(all="ignore"):
         for _ in range(2):
-            h = _hessian(f, x, steps)
+            h = _hessian(f, u0, steps)
             try:
-                c = np.linalg.inv(-h)
+                c = jac @ np.linalg.inv(-h) @ jac.T
             except np.linalg.LinAlgError:
                 break
             s = np.sqrt(np.where(np.diag(c) > 0, np.diag(c), np.nan))
@@ -201,3 +229,10 @@ def _standard_errors(model: Model, values: dict[str, float], d: ModelData,
                 break
             steps = np.minimum(0.2 * held, np.where(room > 0, 0.5 * room, steps))
     return dict(zip(names, map(float, se))), cov
+
+
+def _log_middle_range(d: ModelData) -> float:
+    """ln of the degrees-of-freedom-weighted geometric mean range (the paper's fit's z_ref), kept with `d`."""
+    if "log_middle_range" not in d.__dict__:
+        d.__dict__["log_middle_range"] = float(np.sum(d.nu * np.log(d.z_m)) / np.sum(d.nu))
+    return d.__dict__["log_middle_range"]
