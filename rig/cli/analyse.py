@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -43,6 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
     p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     _add_effects_arg(p)
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="fit the candidate effects in this many processes (default: one per core)")
     p.set_defaults(func=cmd_diagnose)
 
 
@@ -242,7 +245,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                 progress(p)
 
         try:
-            diag = diagnose(d, model, source=args.recording, catalogue=cat, progress=fits)
+            diag = diagnose(d, model, source=args.recording, catalogue=cat, progress=fits, jobs=max(1, args.jobs))
         except ValueError as e:
             raise UsageError(str(e)) from None
         progress(WorkProgress("writing the plots and the report", steps[0], steps[0] + 1))

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..models import Catalogue, Effect, EffectFileError, Model, ModelData, ModelFit, likelihood_ratio
+from ..models import Catalogue, Effect, Model, ModelData, ModelFit, likelihood_ratio
+from ..models.parallel import fit_models
 from ..models.progress import ProgressCounter
 
 SIGNIFICANT_DBIC = -10.0
@@ -40,18 +41,26 @@ def applicable_candidates(model: Model, d: ModelData, catalogue: Catalogue | Non
 
 
 def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catalogue | None = None, *,
-                    counter: ProgressCounter | None = None) -> list[Candidate]:
-    """Every applicable effect of the catalogue not yet in `model`, fitted with it, best (lowest BIC) first."""
+                    counter: ProgressCounter | None = None, jobs: int = 1) -> list[Candidate]:
+    """Every applicable effect of the catalogue not yet in `model`, fitted with it (in `jobs` processes), best
+    (lowest BIC) first."""
+    effects = applicable_candidates(model, d, catalogue)
+    models = [model + e for e in effects]
+    if counter is not None and models:
+        counter.step(f"fitting {models[0].name}")
+
+    finished = [0]
+
+    def done(i: int) -> None:
+        finished[0] += 1
+        if counter is not None and finished[0] < len(models):
+            counter.step(f"fitting {models[i + 1].name}" if jobs <= 1 else
+                         f"fitting candidate effects ({finished[0]} of {len(models)} done)")
+
     out = []
-    for e in applicable_candidates(model, d, catalogue):
-        if counter is not None:
-            counter.step(f"fitting {model.name}+{e.name}")
-        try:
-            f = (model + e).fit(d, start=base.values, errors=False)  # errors only for the one chosen
-        except EffectFileError:
-            raise  # a user effect that cannot be evaluated: say so, do not skip it
-        except ValueError:
-            continue
+    for e, f in zip(effects, fit_models(models, d, base.values, jobs=jobs, done=done)):
+        if isinstance(f, ValueError):
+            continue  # this effect cannot be fitted to these data
         stat, df, p = likelihood_ratio(base, f)
         out.append(Candidate(e, f, f.bic - base.bic, stat, df, p))
     out.sort(key=lambda c: c.dbic)

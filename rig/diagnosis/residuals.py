@@ -10,11 +10,13 @@ model's prediction, added into every family's sums at once. No array larger than
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
+from ..models.group_sums import group_sums
 from .bins import RADIUS_EDGES, BinComparison, BinSums, bin_columns, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, sigma_check
 
@@ -188,6 +190,25 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
         checks.append(frame_mean)
     return Residuals(done["range"], done["radius"], by_position, done.get("brightness"), done.get("incidence"),
                      Consistency(checks), done.get("range_radius"))
+
+
+def compare_along(fit: ModelFit, d: ModelData, groups_of: Callable[[ModelData], np.ndarray],
+                  covariate_of: Callable[[ModelData], np.ndarray], labels: dict[int, str] | None = None,
+                  others: tuple[ModelFit, ...] = ()) -> tuple[BinComparison, list[dict[int, float]]]:
+    """`fit` against the data in the bins `groups_of` gives each row (negative: left out), along `covariate_of`,
+    stop by stop; and, per bin, the summed predicted variance of `fit` and of each of `others` (for ratios of
+    models in the same bins)."""
+    sums = BinSums()
+    totals: list[dict[int, float]] = [{} for _ in range(1 + len(others))]
+    for c in d.chunks():
+        groups, p = groups_of(c), fit.predict(c)
+        sums.add(bin_columns(c, p), groups, covariate_of(c))
+        for k, f in enumerate((fit, *others)):
+            var = p.var_m2 if k == 0 else f.predict(c).var_m2
+            keys, s = group_sums(groups, [var], skip_below=0)
+            for key, total in zip(keys.tolist(), s[:, 0]):
+                totals[k][key] = totals[k].get(key, 0.0) + float(total)
+    return sums.finish(labels), totals
 
 
 def consistency(fit: ModelFit, d: ModelData) -> Consistency:

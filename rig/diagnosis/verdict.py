@@ -185,10 +185,11 @@ def default_model(d: ModelData) -> Model:
 
 def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", catalogue: Catalogue | None = None,
              max_steps: int = MAX_STEPS, explain: bool = True, second_round: bool | None = None,
-             progress: ProgressFn | None = None) -> Diagnosis:
+             progress: ProgressFn | None = None, jobs: int = 1) -> Diagnosis:
     """Fit `model`, add missing catalogue effects one at a time (at most `max_steps`), then, with `explain`,
     describe what remains beyond noise with empirical terms. `second_round=False` is `max_steps=1`.
-    `progress` is told of each fit as it begins (`rig.models.progress`)."""
+    `progress` is told of each fit as it begins (`rig.models.progress`); the candidate effects are fitted in
+    `jobs` processes (`rig.models.parallel`)."""
     if second_round is False:
         max_steps = 1
     catalogue = catalogue or Catalogue.default()
@@ -200,12 +201,12 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
     counter.step("fitting power_law")
     pl = fit_power_law(d)  # the paper's fit, for reference: closed form
     steps = [Step(fit, headline(fit, d))]
-    steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter)  # shown even when nothing is missing
+    steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter, jobs=jobs)  # shown even when nothing is missing
     while not steps[-1].headline.within_noise and len(steps) <= max_steps:
         current = steps[-1]
         if len(steps) > 1:
             counter.expect(1 + len(applicable_candidates(current.fit.model, d, catalogue)))
-            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue, counter=counter)
+            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue, counter=counter, jobs=jobs)
         best, equivalent = choose(current.candidates)
         if best is None:
             break

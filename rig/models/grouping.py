@@ -33,16 +33,20 @@ import numpy as np
 from .data import ModelData
 from .group_sums import group_sums
 
-#: tiles per stop the grouping aims at (each becomes 7 nodes)
-TILES_PER_STOP = 1000
-#: grouping is used only when a tile holds at least this many pixels (below, the nodes save little)
-MIN_TILE_PX = 36
+#: nodes the grouping aims at, in all (7 per tile)
+TARGET_NODES = 60_000
+#: data with fewer pixel-stops are fitted as they are
+MIN_ROWS = 100_000
+#: the smallest tile side, px (smaller tiles, with 7 nodes each, save too little to pay)
+MIN_TILE_PX = 6
 #: spread (depth units) below which a pixel's rounded variance depends on its mean's offset between levels
 OFFSET_SPREAD = 1.0
 #: bins of the offset's size, over 0 to 1/2 depth unit, for those pixels
 OFFSET_BINS = 50
 #: a pixel whose mean is this many of its standard errors off its tile's plane of range stays a pixel
 OFF_MEAN = 4.0
+#: so does a pixel that makes this share of its tile's spread of range
+DOMINANT = 0.2
 
 
 class GroupedData(ModelData):
@@ -64,12 +68,11 @@ class GroupedData(ModelData):
 
 
 def tile_size(d: ModelData) -> int:
-    """The tile side (px) for TILES_PER_STOP tiles a stop, or 0 if tiles would be too small to pay."""
-    if d.sources is None or d.calibration is None or not np.isfinite(d.u_px).all():
+    """The tile side (px) that makes about TARGET_NODES nodes of the data, between MIN_TILE_PX and 32 px; 0 (no grouping)
+    for data under MIN_ROWS pixel-stops, which are quick to fit as they are, or without positions and sources."""
+    if len(d) < MIN_ROWS or d.sources is None or d.calibration is None or not np.isfinite(d.u_px).all():
         return 0
-    stops = max(len(np.unique(d.stop)), 1)
-    t = int(math.sqrt(len(d) / stops / TILES_PER_STOP))
-    return t if t * t >= MIN_TILE_PX else 0
+    return int(min(max(math.ceil(math.sqrt(7 * len(d) / TARGET_NODES)), MIN_TILE_PX), 32))
 
 
 def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData:
@@ -157,14 +160,25 @@ def _nodes(r: dict[str, np.ndarray], tile: np.ndarray, dims: int) -> dict[str, n
 
 
 def _mean_off(d: ModelData, tile: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """Pixels whose measured mean is further from their tile's plane of ln Z0 than OFF_MEAN standard errors of
-    a mean allow: mismatched samples pulled the mean and raised the variance together, so the pixel's range and
-    variance co-vary in a heavy tail a second-order expansion does not follow. They stay pixels."""
+    """Pixels whose measured mean is further from their tile's plane of ln Z0 than OFF_MEAN times the larger of
+    their mean's standard error and the spread of their stop's pixels about their planes (robust: 1.4826 x the
+    median absolute deviation; the wall's relief is part of it): mismatched samples pulled the mean and raised
+    the variance together, so such a pixel's range and variance co-vary in a heavy tail a second-order
+    expansion does not follow. They stay pixels."""
     u, v, lz = d.u_px.astype(np.float64), d.v_px.astype(np.float64), np.log(d.z0_m)
     e = _plane_residual(tile, a, u, v, lz)
     neighbours, _ = d.neighbour_variance
-    se_ln = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2) / d.n) / d.z0_m
-    return np.abs(e) > OFF_MEAN * se_ln
+    scale = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2) / d.n) / d.z0_m
+    slices = d.stop_slices() or [np.flatnonzero(d.stop == s) for s in np.unique(d.stop)]
+    for rows in slices:
+        es = e[rows]
+        spread = 1.4826 * np.median(np.abs(es - np.median(es)))
+        scale[rows] = np.maximum(scale[rows], spread)
+    off = np.abs(e) > OFF_MEAN * scale
+    # and a pixel that alone makes DOMINANT of its tile's spread of range sets the tile's nodes: it stays a pixel too
+    share = a * e * e
+    _, total = group_sums(tile, [np.where(off, 0.0, share)])
+    return off | (share > DOMINANT * total[tile, 0])
 
 
 def _plane_residual(tile: np.ndarray, a: np.ndarray, u: np.ndarray, v: np.ndarray, lz: np.ndarray) -> np.ndarray:

@@ -162,11 +162,12 @@ def _paper_fit(d: ModelData, lam: float | None):
 
 
 def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:
-    """`fit` with its Cramer-Rao standard errors and covariance (computed if it was fitted without them)."""
+    """`fit` with its Cramer-Rao standard errors and covariance (computed if it was fitted without them), from the
+    data it was fitted on (grouped nodes where `fit_model` would use them)."""
     names = [n for n, _ in fit.model.free()]
     if not names or all(n in fit.errors for n in names):
         return fit
-    se, cov = _standard_errors(fit.model, fit.values, d, names)
+    se, cov = _standard_errors(fit.model, fit.values, fit_data(fit.model, d), names)
     return replace(fit, errors=se, covariance=cov)
 
 

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..diagnosis import BinComparison, Diagnosis, compare_bins, range_bins  # noqa: E402
+from ..diagnosis import BinComparison, Diagnosis  # noqa: E402
 from .shape_plot import plot_shape  # noqa: E402
 
 
@@ -103,7 +103,6 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
 def plot_path(diag: Diagnosis, path: Path) -> None:
     """The path: headline error after each step (and the noise level); sigma's residual by range at the
     start, after the catalogue's effects and at the end."""
-    d = diag.data
     names = ["start"] + [f"+ {s.added.effect.name}" for s in diag.steps[1:]]
     errors = [s.headline.error_pct for s in diag.steps]
     noise = [s.headline.noise_pct for s in diag.steps]
@@ -124,15 +123,18 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
     ax.set_title("The path: green = every statistic within noise")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
-    fits = [(diag.model_fit, "tab:red"), (diag.catalogue_fit, "tab:orange"), (diag.final_fit, "tab:green")]
+    fits = [(diag.model_fit, diag.model_headline, "tab:red"), (diag.catalogue_fit, diag.catalogue_headline, "tab:orange"),
+            (diag.final_fit, diag.final_headline, "tab:green")]
     seen = set()
-    for fit, color in fits:
-        if fit.model.name in seen:
+    for fit, head, color in fits:
+        by_range = head.consistency.find("sigma", "range") if head.consistency is not None else None
+        if fit.model.name in seen or by_range is None:
             continue
         seen.add(fit.model.name)
-        bb = compare_bins(d, fit.predict(d), range_bins(d.z_m)[0], d.z_m)
-        ax2.errorbar(bb.center, 100 * bb.log_ratio, yerr=200 * bb.se_log, fmt="o-", ms=4, capsize=2, color=color,
-                     label=fit.model.name)
+        # sigma by range as the headline's checks measured it: no second pass over the pixels
+        log_ratio = np.log(by_range.measured / by_range.predicted)
+        ax2.errorbar(by_range.center, 100 * log_ratio, yerr=200 * by_range.se / by_range.measured, fmt="o-", ms=4,
+                     capsize=2, color=color, label=fit.model.name)
     ax2.axhline(0, color="k", lw=0.8)
     ax2.set_xlabel("Z [m]")
     ax2.set_ylabel("ln(σ measured / σ model) [%]")

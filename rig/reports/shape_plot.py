@@ -10,9 +10,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..diagnosis.bins import compare_bins, subset  # noqa: E402
+from ..diagnosis.residuals import compare_along  # noqa: E402
 from ..diagnosis.unexplained import EmpiricalStep  # noqa: E402
 from ..models import ModelData, ModelFit  # noqa: E402
+from ..models.data import range_bin_index  # noqa: E402
 from ..models.empirical import (COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition,  # noqa: E402
                                 EmpiricalSigma, EmpiricalTails)
 
@@ -28,17 +29,19 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
         c = read(d)
         ok = np.isfinite(c)
         edges = np.unique(np.nanquantile(c[ok], np.linspace(0, 1, QUANTILE_BINS + 1)))
-        groups = np.where(ok, np.clip(np.digitize(np.nan_to_num(c), edges[1:-1]), 0, len(edges) - 2), -1)
-        sel = groups >= 0
-        b = compare_bins(d.select(sel), subset(before.predict(d), sel), groups[sel], c[sel])
+
+        def groups_of(chunk: ModelData) -> np.ndarray:
+            x = read(chunk)
+            return np.where(np.isfinite(x), np.clip(np.digitize(np.nan_to_num(x), edges[1:-1]), 0, len(edges) - 2), -1)
+
+        b, (var_before, var_after) = compare_along(before, d, groups_of, read, others=(after,))
         ax.errorbar(b.center, np.exp(b.log_ratio), yerr=2 * b.se_log * np.exp(b.log_ratio), fmt="o", ms=4, capsize=2,
                     label=f"measured / {before.model.name} (±2 s.e.)")
         # what the model with the shape predicts against the model without it, in the same bins as the points
         # (the joint refit moves k and the catalogue terms too, so the shape alone is not on the points' scale)
-        var_before, var_after = before.predict(d).var_m2, after.predict(d).var_m2
-        ids = np.unique(groups[sel])
-        centre = [float(np.median(c[groups == g])) for g in ids]
-        ratio = [float(np.sqrt(var_after[groups == g].sum() / var_before[groups == g].sum())) for g in ids]
+        ids = sorted(var_before)
+        ratio = [float(np.sqrt(var_after[g] / var_before[g])) for g in ids]
+        centre = [float(x) for x in b.center] if len(b.center) == len(ids) else [float(np.mean(edges[g:g + 2])) for g in ids]
         ax.plot(centre, ratio, "-", color="tab:green", lw=2, label=f"with {term.name} / without (the fitted model)")
         grid = np.linspace(np.nanmin(c), np.nanmax(c), 200)
         ax.plot(grid, np.exp(term.log_multiplier(grid, after.values)), "--", color="tab:green", lw=1,
@@ -58,10 +61,11 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
         ax.set_xlabel("(u - cx) / fx")
         ax.set_ylabel("(v - cy) / fy")
     elif isinstance(term, EmpiricalTails):
-        b = compare_bins(d, before.predict(d), np.round(d.z_m / 0.25).astype(int), d.z_m)
+        windows = (lambda chunk: range_bin_index(chunk.z_m)), (lambda chunk: chunk.z_m)
+        b, _ = compare_along(before, d, *windows)
         ax.errorbar(b.center, b.kurt_meas, yerr=2 * b.se_kurt, fmt="o", ms=4, capsize=2, label="measured kurtosis")
         ax.plot(b.center, b.kurt_pred, "-", color="tab:red", label=before.model.name)
-        a = compare_bins(d, after.predict(d), np.round(d.z_m / 0.25).astype(int), d.z_m)
+        a, _ = compare_along(after, d, *windows)
         ax.plot(a.center, a.kurt_pred, "-", color="tab:green", label=f"with {term.name}")
         ax.set_xlabel("Z [m]")
         ax.set_ylabel("kurtosis (normal = 3)")

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..models import ModelData, ModelFit
+from ..models.group_sums import group_sums
 
 
 @dataclass(frozen=True)
@@ -40,24 +41,28 @@ COLUMNS = tuple(f.name for f in fields(StopRow))
 
 
 def stop_rows(fit: ModelFit, d: ModelData) -> list[StopRow]:
-    """The table of `fit` on the pixels it was fitted to, `d`."""
-    var_model = np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape)
+    """The table of `fit` on the pixels it was fitted to, `d` (visited a few stops at a time)."""
     labels = d.stops.label if d.stops is not None else None
+    totals: dict[int, np.ndarray] = {}
+    for c in d.chunks():
+        var_model = np.broadcast_to(np.asarray(fit.predict(c).var_m2, dtype=float), c.z_m.shape)
+        w = c.nu
+        keys, sums = group_sums(c.stop, [1.0, w, w * c.z_m, c.n, c.m2_m2, w * var_model, c.fill])
+        for key, row in zip(keys.tolist(), sums):
+            totals[key] = totals[key] + row if key in totals else row
     rows = []
-    for s in np.unique(d.stop):
-        at = d.stop == s
-        w = d.nu[at]
-        weight = w.sum()
+    for s in sorted(totals):
+        pixels, weight, wz, samples, m2, wvar, fill = totals[s]
         if weight <= 0:
             continue
         rows.append(StopRow(
             stop=labels[int(s)] if labels is not None else str(int(s)),
-            range_m=float(np.sum(w * d.z_m[at]) / weight),
-            pixels=int(at.sum()),
-            samples=int(d.n[at].sum()),
-            measured_sigma_m=float(np.sqrt(d.m2_m2[at].sum() / weight)),
-            model_sigma_m=float(np.sqrt(np.sum(w * var_model[at]) / weight)),
-            fill_rate=float(np.mean(d.fill[at])),
+            range_m=float(wz / weight),
+            pixels=int(pixels),
+            samples=int(samples),
+            measured_sigma_m=float(np.sqrt(m2 / weight)),
+            model_sigma_m=float(np.sqrt(wvar / weight)),
+            fill_rate=float(fill / pixels),
         ))
     return rows
 

@@ -1,0 +1,100 @@
+"""One figure of the benchmark table: ours against the baseline measured in the same run, and its target."""
+
+from __future__ import annotations
+
+import json
+import platform
+import resource
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+
+@dataclass
+class Figure:
+    """ours and baseline in `unit` (lower is better unless `higher_is_better`); `target`: in words; `passed`:
+    whether ours meets it (None: no target); `ratio` = ours / baseline."""
+
+    name: str
+    ours: float
+    baseline: float
+    unit: str
+    target: str
+    passed: bool | None
+    baseline_name: str = ""
+    note: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def ratio(self) -> float:
+        return self.ours / self.baseline if self.baseline else float("nan")
+
+
+def best_of(fn: Callable[[], object], repeats: int = 3) -> float:
+    """The least CPU time (s) of `repeats` calls (CPU time: these machines are shared and noisy)."""
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        best = min(best, time.process_time() - t0)
+    return best
+
+
+def run_measured(cmd: list[str], cwd: Path | None = None) -> tuple[float, float, float, str]:
+    """Run a command in a child that reports its own child's CPU time (s), peak memory (MB) and wall time (s)."""
+    probe = ("import resource, subprocess, sys, time, json; t = time.monotonic(); "
+             "p = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
+             "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
+             "print(json.dumps([u.ru_utime + u.ru_stime, u.ru_maxrss / 1024, time.monotonic() - t, p.returncode, "
+             "p.stdout[-2000:] + p.stderr[-2000:]]))")
+    out = subprocess.run([sys.executable, "-c", probe, *cmd], capture_output=True, text=True, cwd=cwd, check=True)
+    cpu, peak_mb, wall, status, text = json.loads(out.stdout.strip().splitlines()[-1])
+    if status != 0:
+        raise RuntimeError(f"{' '.join(cmd)} exited {status}: {text}")
+    return cpu, peak_mb, wall, text
+
+
+def machine() -> dict:
+    """What the figures were measured on."""
+    cpu = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import os
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
+            "load_average": [round(x, 2) for x in load], "max_rss_self_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def table(figures: list[Figure]) -> str:
+    """The results as a Markdown table: figure, ours, baseline, ratio, target, pass/fail."""
+    rows = ["| figure | ours | baseline | ratio | target | |", "|---|---|---|---|---|---|"]
+    for f in figures:
+        verdict = "" if f.passed is None else ("pass" if f.passed else "FAIL")
+        base = f"{_fmt(f.baseline)} {f.unit} ({f.baseline_name})" if f.baseline_name else f"{_fmt(f.baseline)} {f.unit}"
+        rows.append(f"| {f.name} | {_fmt(f.ours)} {f.unit} | {base} | {f.ratio:.2f} | {f.target} | {verdict} |")
+    return "\n".join(rows)
+
+
+def _fmt(x: float) -> str:
+    if x != x:
+        return "-"
+    if abs(x) >= 100:
+        return f"{x:.0f}"
+    if abs(x) >= 1:
+        return f"{x:.2f}"
+    return f"{x:.3g}"
+
+
+def write_json(figures: list[Figure], path: Path, settings: dict) -> None:
+    doc = {"machine": machine(), "settings": settings,
+           "figures": [{**asdict(f), "ratio": f.ratio} for f in figures]}
+    path.write_text(json.dumps(doc, indent=2, allow_nan=True).replace("NaN", "null"))

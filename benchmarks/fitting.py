@@ -1,0 +1,98 @@
+"""Fitting: `rig fit`, `rig fit --model` and `rig diagnose` on the sweep against the paper's likelihood in a short
+script; the fit against the per-sample MLE over raw samples; the fit's time against pixel-stops."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .baselines import PAPER_SCRIPT, per_sample_mle
+from .data import RIG
+from .figures import Figure, run_measured
+
+THREE_EFFECTS = "active+noise_floor+slant_range+outliers"
+
+
+def commands(sweep: Path, workdir: Path) -> list[Figure]:
+    """`rig fit`, `rig fit --model` (three effects) and `rig diagnose` on the sweep, CPU s (and peak memory for
+    `rig fit`), each against the paper's script on the same file."""
+    script = workdir / "paper_fit.py"
+    script.write_text(PAPER_SCRIPT)
+    base_cpu, base_mb, _, base_out = run_measured([sys.executable, str(script), str(sweep)])
+    k_script, lam_script = (float(x) for x in base_out.split()[:2])
+    fit_cpu, fit_mb, fit_wall, fit_out = run_measured([RIG, "-q", "fit", str(sweep), "--json"])
+    doc = json.loads(fit_out[fit_out.index("{"):])
+    fit = doc["fits"][0]
+    k, lam = fit["values"]["k"], fit["values"]["lambda"]
+    agree = max(abs(k / k_script - 1), abs(lam / lam_script - 1))
+    out = [
+        Figure("rig fit (power law) on the sweep, CPU", fit_cpu, base_cpu, "s", "< 2 s", fit_cpu < 2.0,
+               "the paper's likelihood in a 30-line script", note=f"wall {fit_wall:.1f} s; k and lambda agree to {agree:.1e}",
+               extra={"k": k, "lambda": lam, "k_script": k_script, "lambda_script": lam_script}),
+        Figure("rig fit (power law) on the sweep, peak memory", fit_mb, base_mb, "MB", "< 500 MB", fit_mb < 500.0,
+               "the same script"),
+    ]
+    model_cpu, _, model_wall, _ = run_measured([RIG, "-q", "fit", str(sweep), "--model", THREE_EFFECTS, "--no-held-out"])
+    out.append(Figure(f"rig fit --model {THREE_EFFECTS} on the sweep, CPU", model_cpu, base_cpu, "s", "< 10 s",
+                      model_cpu < 10.0, "the paper's script", note=f"wall {model_wall:.1f} s (without the held-out score)"))
+    with tempfile.TemporaryDirectory() as tmp:
+        diag_cpu, diag_mb, diag_wall, _ = run_measured([RIG, "-q", "diagnose", str(sweep), "--out", tmp])
+    out.append(Figure("rig diagnose (every candidate) on the sweep, wall", diag_wall, base_cpu, "s", "< 30 s",
+                      diag_wall < 30.0, "the paper's script (CPU)",
+                      note=f"CPU {diag_cpu:.1f} s over the processes (--jobs: one per core); peak {diag_mb:.0f} MB"))
+    return out
+
+
+def against_per_sample(raw: Path) -> list[Figure]:
+    """The fit from per-pixel statistics against the paper's MLE over every raw sample, same recording."""
+    from protocols.recording import Recording
+    from rig.models import fit_power_law, load_samples
+
+    import h5py
+
+    with Recording(raw) as rec:
+        cal, labels = rec.calibration, rec.stop_labels()
+    with h5py.File(raw, "r") as f:  # the raw frames, as the baseline would read them
+        frames = [f["stops"][label]["raw_depth"][()] for label in labels]
+    t0 = time.process_time()
+    with Recording(raw) as rec:
+        ours = fit_power_law(load_samples(rec))
+    t_ours = time.process_time() - t0
+    t0 = time.process_time()
+    k, lam, samples = per_sample_mle(frames, cal.depth_scale_m)
+    t_base = time.process_time() - t0
+    agree = max(abs(ours.k / k - 1), abs(ours.lam / lam - 1))
+    return [Figure(f"fit from per-pixel statistics against a per-sample scipy MLE ({samples / 1e6:.1f} M samples), CPU",
+                   t_ours, t_base, "s", "the same k and lambda to 1e-6", agree < 1e-6, "per-sample MLE over raw frames",
+                   note=f"k and lambda agree to {agree:.1e}",
+                   extra={"k": ours.k, "lambda": ours.lam, "k_per_sample": k, "lambda_per_sample": lam})]
+
+
+def scaling(sweep: Path) -> list[Figure]:
+    """The power-law fit's CPU time against pixel-stops: every 8th, 4th, 2nd and every pixel of the sweep."""
+    from protocols.recording import Recording
+    from rig.models import ModelData, fit_power_law, load_samples
+
+    with Recording(sweep) as rec:
+        d = load_samples(rec)
+    fit_power_law(d.select(slice(0, 1000)))  # compiled before timing
+    rows = []
+    for step in (8, 4, 2, 1):
+        part = d if step == 1 else ModelData(z_m=d.z_m[::step].copy(), m2_m2=d.m2_m2[::step].copy(),
+                                             m4_m4=d.m4_m4[::step].copy(), n=d.n[::step].copy(), stop=d.stop[::step].copy())
+        best = min(_timed(lambda: fit_power_law(part)) for _ in range(3))
+        rows.append((len(part), best))
+    per = [t / n for n, t in rows]
+    linear = max(per) / min(per)
+    return [Figure(f"fit time per pixel-stop at {n / 1e6:.2f} M pixel-stops", 1e9 * t / n, 1e9 * rows[0][1] / rows[0][0],
+                   "ns", "grows linearly: within 2x of the smallest size's", linear < 2.0, "the smallest size",
+                   note=f"{t:.3f} s in all") for n, t in rows]
+
+
+def _timed(fn) -> float:
+    t0 = time.process_time()
+    fn()
+    return time.process_time() - t0

@@ -1,0 +1,96 @@
+"""Several models fitted to the same data at once, in worker processes (a diagnosis's candidate effects).
+
+The workers are forked: they share the parent's data, its grouped nodes (made once before the fork) and
+its compiled kernels, and send back only numbers (parameter values, log-likelihood, convergence), from
+which the parent makes each `ModelFit` with its own model objects; effects defined in a user's file never
+have to be pickled. Fork is POSIX-only, and a forked child must not need a lock another thread holds, so
+`fit_models` runs in the calling process when `jobs` is 1, where fork is not available, or when it is not
+called from the main thread (the TUI fits in a worker thread while the UI's threads run); the main thread
+of the command line may have a progress line's daemon ticker, which the children never touch.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import signal
+import threading
+from dataclasses import replace
+from typing import Callable
+
+from .composition import Model
+from .data import ModelData
+from .optimise import fit_data
+from .result import ModelFit
+
+#: what the forked workers read (set before the pool starts, so each inherits it)
+_JOB: tuple[list[Model], ModelData, dict[str, float] | None] | None = None
+
+
+def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None = None, *, jobs: int = 1,
+               done: Callable[[int], None] | None = None) -> list[ModelFit | ValueError]:
+    """Each model fitted (without standard errors) from `start`, in order; a model that cannot be fitted gives
+    its ValueError (an `EffectFileError` is raised). `done(i)` is called as model i finishes."""
+    global _JOB
+    forkable = "fork" in multiprocessing.get_all_start_methods() and threading.current_thread() is threading.main_thread()
+    if jobs <= 1 or len(models) <= 1 or not forkable:
+        out = []
+        for i, m in enumerate(models):
+            out.append(_fit(m, d, start))
+            if done is not None:
+                done(i)
+        return [_raised(r) for r in out]
+    for m in models:
+        fit_data(m, d)  # grouped nodes made here, once, not in every worker
+    _JOB = (models, d, start)
+    try:
+        results: list = [None] * len(models)
+        pool = multiprocessing.get_context("fork").Pool(min(jobs, len(models)), initializer=_quiet_signals)
+        try:
+            for i, r in pool.imap_unordered(_fit_in_worker, range(len(models))):
+                results[i] = r if isinstance(r, Exception) else replace(r, model=models[i])
+                if done is not None:
+                    done(i)
+            pool.close()
+        except BaseException:
+            pool.terminate()
+            raise
+        finally:
+            pool.join()
+    finally:
+        _JOB = None
+    return [_raised(r) for r in results]
+
+
+def _fit(m: Model, d: ModelData, start: dict[str, float] | None) -> ModelFit | Exception:
+    from .user_effects import EffectFileError
+
+    try:
+        return m.fit(d, start=start, errors=False)
+    except EffectFileError as e:
+        return e
+    except ValueError as e:
+        return e
+
+
+def _quiet_signals() -> None:
+    """In a worker: Ctrl-C is the parent's to handle (it ends the pool), and a terminate ends the worker quietly
+    (the command line turns SIGTERM into an interrupt, which a worker must not inherit)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _fit_in_worker(i: int) -> tuple[int, object]:
+    """In a worker: fit model i; send back the fit without its effects (the parent puts its own model back: a
+    user's effects may not pickle), or the error."""
+    models, d, start = _JOB  # type: ignore[misc]
+    r = _fit(models[i], d, start)
+    return i, (r if isinstance(r, Exception) else replace(r, model=Model(models[i].base)))
+
+
+def _raised(r: object) -> ModelFit | ValueError:
+    """The fit, or the ValueError that it could not be fitted; an effects-file error is raised."""
+    from .user_effects import EffectFileError
+
+    if isinstance(r, EffectFileError):
+        raise r
+    return r  # type: ignore[return-value]
