@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    p.add_argument("--many", action="store_true", help="RECORDING is a folder: fit every *.h5 in it, one process per "
+                                                       "core (--jobs), a line each (with --json: one document a line)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="processes for --many (default: one per core)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_fit)
 
@@ -104,6 +107,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     refuse_unwritable(args.plot, "--plot")
     refuse_unwritable(args.table, "--table")
+    if args.many:
+        return _fit_many(args)
     if args.model:
         return _fit_model(args)
     if args.effects:
@@ -137,6 +142,36 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"plot: {out}", file=sys.stderr if args.json else sys.stdout)  # stdout holds the JSON alone
     _write_table(args, r.fit, r.samples)
     return exit_status([h])
+
+
+def _fit_many(args: argparse.Namespace) -> int:
+    """rig fit --many DIR: the paper's fit of every recording in a folder, in a pool of processes."""
+    from ..many import fit_many, recordings_in
+    from ..reports.result_json import dumps
+
+    folder = Path(args.recording)
+    if not folder.is_dir():
+        raise UsageError(f"--many takes a folder of recordings, and {folder} is not one; give the folder, or drop --many")
+    if args.model or args.plot or args.table or args.z_min is not None or args.z_max is not None:
+        raise UsageError("--many fits the paper's model of each whole recording; drop --model, --plot, --table and the "
+                         "--z-min/--z-max window, or fit the recordings one by one")
+    paths = recordings_in(folder)
+    if not paths:
+        raise UsageError(f"{folder} holds no recordings (*.h5); record some with rig run, or give another folder")
+    failed = 0
+    if not args.json:
+        print(f"{'recording':<32} {'k':>12} {'+/-':>9} {'lambda':>9} {'+/-':>9} {'headline':>9}  verdict")
+    for row in fit_many(paths, args.jobs):
+        failed += bool(row.error)
+        if args.json:
+            print(dumps(row.document, line=True) if row.document else dumps({"file": str(row.path), "error": row.error}, line=True))
+        elif row.error:
+            print(f"{row.path.name:<32} error: {row.error}")
+        else:
+            print(f"{row.path.name:<32} {row.k:>12.6g} {row.se_k:>9.2g} {row.lam:>9.5f} {row.se_lam:>9.2g} "
+                  f"{row.headline_pct:>8.2f}%  {row.verdict}")
+        sys.stdout.flush()
+    return 2 if failed == len(paths) else 0
 
 
 def _fit_model(args: argparse.Namespace) -> int:

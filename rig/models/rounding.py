@@ -30,6 +30,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 from scipy.special import ndtr
 
 from .rounding_table import S_GRID, conditional_variance
@@ -74,30 +75,49 @@ def _table() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 def rounded_moments(s: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Var[R] and the fourth central moment of R (both in units of q), for spread s (units of q) and the
     measured mean's offset f from the nearest level (units of q, |f| <= 1/2)."""
-    s = np.asarray(s, dtype=float)
-    f = np.clip(np.abs(np.asarray(f, dtype=float)), 0.0, 0.5)
-    log_s, f_grid, var_t, mu4_t = _table()
-    ls = np.clip(np.log(np.maximum(s, 1e-300)), log_s[0], log_s[-1])
-    x = (ls - log_s[0]) / (log_s[1] - log_s[0])
-    i = np.clip(x.astype(int), 0, len(log_s) - 2)
-    wx = x - i
-    y = f / (f_grid[1] - f_grid[0])
-    j = np.clip(y.astype(int), 0, len(f_grid) - 2)
-    wy = y - j
-
-    def bilinear(t: np.ndarray) -> np.ndarray:
-        return ((1 - wx) * (1 - wy) * t[i, j] + wx * (1 - wy) * t[i + 1, j]
-                + (1 - wx) * wy * t[i, j + 1] + wx * wy * t[i + 1, j + 1])
-
-    var, mu4 = bilinear(var_t), bilinear(mu4_t)
-    wide = s > S_MAX
-    if wide.any():
-        v = s[wide] ** 2 + 1.0 / 12.0
-        var = np.where(wide, 0.0, var)
-        mu4 = np.where(wide, 0.0, mu4)
-        var[wide] = v
-        mu4[wide] = 3 * v**2 - 1.0 / 120.0
+    var, mu4 = _lookup(np.asarray(s, dtype=float), np.asarray(f, dtype=float), np.zeros(1), False)
     return var, mu4
+
+
+def _lookup(s: np.ndarray, f: np.ndarray, n: np.ndarray, conditioned: bool) -> tuple[np.ndarray, np.ndarray]:
+    """`rounded_moments` on broadcast s, f (and, `conditioned`, Var[R] (1 + b(s) / (n - 1)) in place of Var[R])."""
+    log_s, f_grid, var_t, mu4_t = _table()
+    s_b, f_b, n_b = np.broadcast_arrays(s, f, n if conditioned else 0.0)
+    shape = s_b.shape
+    var, mu4 = np.empty(shape), np.empty(shape)
+    _moments(np.ascontiguousarray(s_b, dtype=float).ravel(), np.ascontiguousarray(f_b, dtype=float).ravel(),
+             np.ascontiguousarray(n_b, dtype=float).ravel(), conditioned, float(log_s[0]), float(log_s[1] - log_s[0]),
+             float(f_grid[1] - f_grid[0]), var_t, mu4_t, var.reshape(-1), mu4.reshape(-1))
+    return var, mu4
+
+
+@njit(cache=True, nogil=True)
+def _moments(s, f, n, conditioned, log_s0, dlog_s, df, var_t, mu4_t, var, mu4):  # pragma: no cover - compiled
+    """Per element: the table's bilinear interpolation in (ln s, |f|) up to S_MAX, Sheppard's moments beyond;
+    with `conditioned`, the variance times 1 + b(s) / max(n - 1, 1) (`conditioning`)."""
+    ns, nf = var_t.shape
+    for e in range(s.size):
+        se = s[e]
+        if se > S_MAX:
+            v = se * se + 1.0 / 12.0
+            m4 = 3 * v * v - 1.0 / 120.0
+        else:
+            ls = np.log(max(se, 1e-300))
+            ls = min(max(ls, log_s0), log_s0 + dlog_s * (ns - 1))
+            x = (ls - log_s0) / dlog_s
+            i = min(max(int(x), 0), ns - 2)
+            wx = x - i
+            y = min(max(abs(f[e]), 0.0), 0.5) / df
+            j = min(max(int(y), 0), nf - 2)
+            wy = y - j
+            v = ((1 - wx) * (1 - wy) * var_t[i, j] + wx * (1 - wy) * var_t[i + 1, j]
+                 + (1 - wx) * wy * var_t[i, j + 1] + wx * wy * var_t[i + 1, j + 1])
+            m4 = ((1 - wx) * (1 - wy) * mu4_t[i, j] + wx * (1 - wy) * mu4_t[i + 1, j]
+                  + (1 - wx) * wy * mu4_t[i, j + 1] + wx * wy * mu4_t[i + 1, j + 1])
+        if conditioned:
+            v *= 1.0 + 1.0 / (1.0 + (se / 0.18) ** 6) / max(n[e] - 1.0, 1.0)
+        var[e] = v
+        mu4[e] = m4
 
 
 def grid_offset(mean_units: np.ndarray) -> np.ndarray:
@@ -109,8 +129,7 @@ def expected_sample_variance(s: np.ndarray, f: np.ndarray, n: np.ndarray) -> tup
     """E[s2 | measured offset f, s2 > 0] of a pixel (units of q^2), and the fourth central moment (q^4)."""
     s = np.asarray(s, dtype=float)
     n = np.asarray(n, dtype=float)
-    var, mu4 = rounded_moments(s, f)
-    approx = var * (1.0 + conditioning(s) / np.maximum(n - 1.0, 1.0))
+    approx, mu4 = _lookup(s, np.asarray(f, dtype=float), n, True)  # Var[R] (1 + b(s) / (n - 1))
     s_b, f_b, n_b = np.broadcast_arrays(s, f, n)
     narrow = s_b < S_GRID[-1]
     if not np.any(narrow):

@@ -40,9 +40,9 @@ def finite(x: Any) -> Any:
     return x
 
 
-def dumps(doc: dict) -> str:
-    """The document as JSON text; never a bare NaN or Infinity."""
-    return json.dumps(finite(doc), indent=2, allow_nan=False)
+def dumps(doc: dict, *, line: bool = False) -> str:
+    """The document as JSON text (with `line`, on one line: JSON Lines); never a bare NaN or Infinity."""
+    return json.dumps(finite(doc), indent=None if line else 2, allow_nan=False)
 
 
 def headline_json(h: Headline) -> dict:
