@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from scipy.special import ndtr
 
 from .data import ModelData
@@ -30,44 +31,69 @@ _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(32)
 
 def range_transform(pred: Prediction, d: ModelData) -> None:
     """The format's end and the curvature of Z = f b / d: closed-form corrections far from the end,
-    exact moments by quadrature near it (see the module docstring)."""
-    z_max = MAX_DEPTH_UNITS * d.depth_unit_m
-    var_lin = pred.var_m2
-    base_var = pred.censor[1] if pred.censor is not None else var_lin
-    sigma_d = np.sqrt(base_var) * d.fb_px_m / d.z0_m**2
-    a = (d.fb_px_m / z_max - d.fb_px_m / d.z0_m) / sigma_d
-    near = a > -NEAR_LIMIT_SIGMA
-    if not near.any():
-        curvature(pred, d)
-        return
-    far = ~near
-    var_out, k4_out = var_lin.copy(), None
-    rel = var_lin[far] / d.z0_m[far] ** 2
-    var_out[far] = var_lin[far] * (1.0 + 8.0 * rel)
-    k4_far = 72.0 * rel * var_lin[far] ** 2
-    k4_out = np.zeros_like(var_lin) if pred.k4_m4 is None else np.broadcast_to(pred.k4_m4, var_lin.shape).copy()
-    k4_out[far] = k4_out[far] + k4_far
-    # near the end: quadrature over x in [lo, hi], x the disparity error in its own standard deviations
-    c = pred.censor[0][near] if pred.censor is not None else np.full(int(near.sum()), 8.0)
-    lo, hi = np.maximum(a[near], -c), np.minimum(c, 8.0)
-    kept_before = (2 * ndtr(c) - 1) if pred.censor is not None else np.ones(int(near.sum()))
-    half = 0.5 * (hi - lo)[:, None]
-    x = 0.5 * (hi + lo)[:, None] + half * _NODES[None, :]
-    w = half * _WEIGHTS[None, :] * np.exp(-0.5 * x * x) / SQRT_2PI
-    mass = np.maximum(w.sum(axis=1), 1e-300)
-    d0 = d.fb_px_m / d.z0_m[near]
-    z = d.fb_px_m / np.maximum(d0[:, None] + sigma_d[near][:, None] * x, 1e-12)
-    mean = (w * z).sum(axis=1) / mass
-    dev = z - mean[:, None]
-    var_near = (w * dev**2).sum(axis=1) / mass
-    mu4 = (w * dev**4).sum(axis=1) / mass
-    var_out[near] = var_near
-    k4_out[near] = mu4 - 3 * var_near**2
+    exact moments by quadrature near it (see the module docstring); one compiled pass (`_transform`)."""
+    var_lin = np.ascontiguousarray(pred.var_m2, dtype=float)
+    n = var_lin.size
+    base_var = var_lin if pred.censor is None else np.ascontiguousarray(pred.censor[1], dtype=float)
+    k4_in = np.zeros(1) if pred.k4_m4 is None else np.ascontiguousarray(np.broadcast_to(pred.k4_m4, var_lin.shape), dtype=float)
+    cut = np.zeros(1) if pred.censor is None else np.ascontiguousarray(np.broadcast_to(pred.censor[0], var_lin.shape), dtype=float)
+    var_out, k4_out, fill = np.empty(n), np.empty(n), np.empty(n)
+    near = _transform(var_lin, base_var, k4_in, pred.k4_m4 is not None, cut, pred.censor is not None,
+                      np.ascontiguousarray(d.z0_m, dtype=float), float(d.fb_px_m), MAX_DEPTH_UNITS * d.depth_unit_m,
+                      NEAR_LIMIT_SIGMA, _NODES, _WEIGHTS, var_out, k4_out, fill)
     pred.var_m2 = var_out
     pred.k4_m4 = k4_out
-    fill = np.ones_like(var_lin)
-    fill[near] = mass / kept_before
-    pred.fill = (pred.fill if pred.fill is not None else 1.0) * fill
+    if near:
+        pred.fill = (pred.fill if pred.fill is not None else 1.0) * fill
+
+
+@njit(cache=True, nogil=True)
+def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, near_sigma, nodes, weights,
+               var_out, k4_out, fill):  # pragma: no cover - compiled
+    """Per pixel: far from the end (the disparity error a > -near_sigma of its own standard deviations from it),
+    `curvature`'s closed form; near it, Gauss-Legendre quadrature of Z = f b / (d0 + sigma_d x) over the normal x
+    on [max(a, -c), min(c, 8)] (c the censoring cut, 8 without). Returns whether any pixel was near."""
+    any_near = False
+    inv_root_2pi = 1.0 / math.sqrt(2.0 * math.pi)
+    for i in range(var_lin.size):
+        z = z0[i]
+        v = var_lin[i]
+        k4 = k4_in[i] if has_k4 else 0.0
+        sigma_d = math.sqrt(base_var[i]) * fb / (z * z)
+        a = (fb / z_max - fb / z) / sigma_d
+        if not a > -near_sigma:
+            rel = v / (z * z)
+            var_out[i] = v * (1.0 + 8.0 * rel)
+            k4_out[i] = k4 + 72.0 * rel * v * v
+            fill[i] = 1.0
+            continue
+        any_near = True
+        c = cut[i] if censored else 8.0
+        lo, hi = max(a, -c), min(c, 8.0)
+        kept_before = math.erf(c / math.sqrt(2.0)) if censored else 1.0  # 2 Phi(c) - 1
+        half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
+        d0 = fb / z
+        mass = total = 0.0
+        for j in range(nodes.size):
+            x = mid + half * nodes[j]
+            w = half * weights[j] * math.exp(-0.5 * x * x) * inv_root_2pi
+            mass += w
+            total += w * fb / max(d0 + sigma_d * x, 1e-12)
+        mass = max(mass, 1e-300)
+        mean = total / mass
+        m2 = m4 = 0.0
+        for j in range(nodes.size):
+            x = mid + half * nodes[j]
+            w = half * weights[j] * math.exp(-0.5 * x * x) * inv_root_2pi
+            dev = fb / max(d0 + sigma_d * x, 1e-12) - mean
+            dev2 = dev * dev
+            m2 += w * dev2
+            m4 += w * dev2 * dev2
+        var_near = m2 / mass
+        var_out[i] = var_near
+        k4_out[i] = m4 / mass - 3.0 * var_near * var_near
+        fill[i] = mass / kept_before
+    return any_near
 
 
 def curvature(pred: Prediction, d: ModelData) -> None:

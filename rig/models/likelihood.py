@@ -142,9 +142,16 @@ def _accumulate(a, b, var, k4, has_k4, fill, kw, pw, window_pos, stop_pos, kurt_
     """One pass over the rows: returns sum(-a ln var - b / var) and adds into the kurtosis windows' sums of kw
     k4 / var^2 and kw, and the stops' sums of pixels x fill and pixels (`fill`, `pw`: one value, or one per row)."""
     gamma = 0.0
+    lost = 0.0  # Neumaier's compensation: a plain running sum's rounding would be noise to the optimiser
     for i in range(var.size):
         v = var[i]
-        gamma -= a[i] * np.log(v) + b[i] / v
+        term = -(a[i] * np.log(v) + b[i] / v)
+        t = gamma + term
+        if abs(gamma) >= abs(term):
+            lost += (gamma - t) + term
+        else:
+            lost += (term - t) + gamma
+        gamma = t
         w = window_pos[i]
         if w >= 0:  # grouped nodes may carry negative weights (a quadrature rule)
             kurt_den[w] += kw[i]
@@ -154,7 +161,7 @@ def _accumulate(a, b, var, k4, has_k4, fill, kw, pw, window_pos, stop_pos, kurt_
         s = stop_pos[i]
         fill_sum[s] += p * (fill[i] if fill.size > 1 else fill[0])
         fill_count[s] += p
-    return gamma
+    return gamma + lost
 
 
 def _fill_table(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
