@@ -236,7 +236,11 @@ class RecordingWriter:
         if self._open_stop is None:
             raise RecordingError("end_stop without begin_stop")
         f, label, partial = self._open_stop
-        comp = dict(compression="gzip", compression_opts=1, shuffle=True, fletcher32=True)  # a flipped byte is an error, not a value
+        h, w = stats.count.shape
+        # a flipped byte is an error, not a value (Fletcher-32); chunks of whole rows, about 256 kB, so a reader
+        # takes a stop in a few dozen chunks (h5py's own guess cut a full-resolution stop into 128)
+        comp = dict(compression="gzip", compression_opts=1, shuffle=True, fletcher32=True,
+                    chunks=(max(1, min(h, (1 << 15) // max(w, 1))), w))
         g.create_dataset("count", data=stats.count, **comp)
         g.create_dataset("mean_m", data=stats.mean_m, **comp)
         g.create_dataset("m2_m2", data=stats.m2_m2, **comp)

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 from protocols.recording import Recording
@@ -23,8 +24,15 @@ class RecordingFit:
     projector_on: bool
     samples: ModelData  # every pixel with two or more samples (in the --z-min/--z-max window, if given)
     fit: ModelFit  # the paper's power law
-    measured: BinnedSigma  # per stop (perpendicular) or per 0.25 m window (tilted)
+    labels: list[str]  # the stops, in order
     notes: list[str]  # what to know about the recording itself (interrupted, stops missing, entries skipped)
+
+    @cached_property
+    def measured(self) -> BinnedSigma:
+        """Measured sigma per stop (perpendicular) or per 0.25 m window (tilted): for plots, made when asked for."""
+        if len(self.labels) > 1:
+            return pooled_sigma(self.samples, self.samples.stop, self.labels)
+        return sigma_by_range(self.samples)
 
 
 def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: float | None = None,
@@ -35,15 +43,11 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
     with Recording(path) as rec:
         samples = load_samples(rec)
         labels = rec.stop_labels()
-        projector = rec.stop(labels[0]).projector_on if labels else True
         protocol = rec.protocol
         notes = rec.notes()
+    projector = samples.sources[0].projector_on if samples.sources else True
     if z_min_m is not None or z_max_m is not None:
         samples = samples.in_range(z_min_m or 0.0, z_max_m or float("inf"))
     counter.step("fitting k and lambda")
     fit = fit_power_law(samples)
-    if len(labels) > 1:
-        measured = pooled_sigma(samples, samples.stop, labels)
-    else:
-        measured = sigma_by_range(samples)
-    return RecordingFit(Path(path), protocol, projector, samples, fit, measured, notes)
+    return RecordingFit(Path(path), protocol, projector, samples, fit, labels, notes)

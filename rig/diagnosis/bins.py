@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..models import ModelData, Prediction
 from ..models.data import RANGE_BIN_M, range_bin_index
@@ -66,11 +67,101 @@ def bin_columns(d: ModelData, pred: Prediction) -> np.ndarray:
     w = np.where(usable, n, 0.0)
     b = np.where(usable, d.pixel_kurtosis, 0.0)
     wb = w * b
-    table = np.empty((len(COLUMNS), len(d)))
+    table = np.empty((len(d), len(COLUMNS)))  # a pixel's columns together (`group_sums`)
     for i, col in enumerate((1.0, nu, d.m2_m2, weight, w * excess_p, w, w2s * 2.0 / nu, w2s / n, shared, usable, w, wb,
                              w * w, wb * w, wb * wb)):
-        table[i] = col
+        table[:, i] = col
     return table
+
+
+def add_families(sums: list["BinSums"], d: ModelData, pred: Prediction, families: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """Add the rows of `d` into every family's sums at once: for family i, bin labels and covariate `families[i]`
+    (negative labels left out); the per-pixel columns (`bin_columns`) made once per pixel, in one compiled pass."""
+    n_rows, n_fam = len(d), len(families)
+    if n_rows == 0 or n_fam == 0:
+        return
+    labels = np.empty((n_fam, n_rows), np.int64)
+    cov = np.empty((n_fam, n_rows))
+    lo = np.zeros(n_fam, np.int64)
+    size = np.zeros(n_fam, np.int64)
+    for i, (g, c) in enumerate(families):
+        labels[i] = g
+        cov[i] = np.nan_to_num(c)
+        ok = g[g >= 0]
+        if ok.size:
+            lo[i], size[i] = ok.min(), ok.max() - ok.min() + 1
+    out = np.zeros((n_fam, int(size.max()) if n_fam else 0, len(COLUMNS) + 1))
+    counts = np.zeros(out.shape[:2], np.int64)
+    gain = np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float))
+    k4 = pred.k4_m4
+    _families(np.ascontiguousarray(d.nu, dtype=float), np.ascontiguousarray(d.m2_m2, dtype=float),
+              np.ascontiguousarray(pred.var_m2, dtype=float),
+              np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (n_rows,)), dtype=float), k4 is not None,
+              np.ascontiguousarray(d.kurtosis_usable), np.ascontiguousarray(np.nan_to_num(d.pixel_kurtosis), dtype=float),
+              np.ascontiguousarray(d.n, dtype=float), gain, labels, cov, lo, size, out, counts)
+    for f in range(n_fam):
+        for g in np.flatnonzero(counts[f]).tolist():
+            key = int(lo[f]) + g
+            row = out[f, g]
+            sums[f].sums[key] = sums[f].sums[key] + row if key in sums[f].sums else row.copy()
+
+
+@njit(cache=True, nogil=True)
+def _families(nu, m2, var, k4, has_k4, usable, beta, n, gain, labels, cov, lo, size, out, counts):  # pragma: no cover
+    """Per pixel: the COLUMNS of `bin_columns`, then for each family, into its bin (runs of one label summed
+    locally first), with nu times the family's covariate last."""
+    n_fam, n_rows = labels.shape
+    k = out.shape[2]
+    vals = np.empty(k - 1)
+    acc = np.zeros((n_fam, k))
+    run = np.full(n_fam, -1, np.int64)
+    count = np.zeros(n_fam, np.int64)
+    for i in range(n_rows):
+        v, nu_i, n_i = var[i], nu[i], n[i]
+        g_shared = gain[i] if gain.size > 1 else gain[0]
+        shared = max(1.0 + (g_shared - 1.0) / 2.0, 1.0)
+        weight = nu_i * v
+        w2s = weight * weight * shared
+        use = usable[i]
+        w = n_i if use else 0.0
+        b = beta[i] if use else 0.0
+        wb = w * b
+        vals[0] = 1.0
+        vals[1] = nu_i
+        vals[2] = m2[i]
+        vals[3] = weight
+        vals[4] = w * (k4[i] / (v * v) if has_k4 else 0.0)
+        vals[5] = w
+        vals[6] = w2s * 2.0 / nu_i
+        vals[7] = w2s / n_i
+        vals[8] = shared
+        vals[9] = 1.0 if use else 0.0
+        vals[10] = w
+        vals[11] = wb
+        vals[12] = w * w
+        vals[13] = wb * w
+        vals[14] = wb * wb
+        for f in range(n_fam):
+            g = labels[f, i] - lo[f]
+            if labels[f, i] < 0 or g >= size[f]:
+                continue
+            if g != run[f]:
+                if run[f] >= 0:
+                    counts[f, run[f]] += count[f]
+                    for j in range(k):
+                        out[f, run[f], j] += acc[f, j]
+                        acc[f, j] = 0.0
+                run[f] = g
+                count[f] = 0
+            count[f] += 1
+            for j in range(k - 1):
+                acc[f, j] += vals[j]
+            acc[f, k - 1] += nu_i * cov[f, i]
+    for f in range(n_fam):
+        if run[f] >= 0:
+            counts[f, run[f]] += count[f]
+            for j in range(k):
+                out[f, run[f], j] += acc[f, j]
 
 
 class BinSums:
@@ -82,7 +173,7 @@ class BinSums:
 
     def add(self, columns: np.ndarray, groups: np.ndarray, covariate: np.ndarray) -> None:
         """Add rows: their `bin_columns`, bin labels and covariate."""
-        keys, sums = group_sums(groups, columns, more=columns[1] * np.nan_to_num(covariate), skip_below=0)
+        keys, sums = group_sums(groups, columns, more=columns[:, 1] * np.nan_to_num(covariate), skip_below=0)
         for key, row in zip(keys.tolist(), sums):
             self.sums[key] = self.sums[key] + row if key in self.sums else row
 

@@ -17,7 +17,7 @@ import numpy as np
 from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
-from .bins import RADIUS_EDGES, BinComparison, BinSums, bin_columns, range_labels
+from .bins import RADIUS_EDGES, BinComparison, BinSums, add_families, bin_columns, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, sigma_check
 
 #: image tiles for the position family (columns, rows)
@@ -74,19 +74,20 @@ class _Layout:
     @classmethod
     def of(cls, d: ModelData) -> "_Layout":
         rho_max, u_max, v_max, a_lo, a_hi, windows, ir_parts = 0.0, -np.inf, -np.inf, np.inf, -np.inf, set(), []
-        for c in d.chunks():
+        for c in d.pieces(neighbours=False):
             if len(c) == 0:
                 continue
             rho_max = max(rho_max, float(np.sqrt(np.max(c.rho2))))
             u_max, v_max = max(u_max, float(np.nanmax(c.u_px))), max(v_max, float(np.nanmax(c.v_px)))
             angle = _angle(c)
             a_lo, a_hi = min(a_lo, float(angle.min())), max(a_hi, float(angle.max()))
-            windows.update(np.unique(range_bin_index(c.z_m)).tolist())
+            rb = range_bin_index(c.z_m)
+            windows.update(range(int(rb.min()), int(rb.max()) + 1))  # labels; empty windows have no bin
             ir = c.ir
             ir_parts.append(ir[np.isfinite(ir)].astype(np.float32))
         positions = len(d) and np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()
         ir = np.concatenate(ir_parts) if ir_parts else np.zeros(0)
-        ir_edges = np.quantile(ir.astype(np.float64), np.linspace(0, 1, 7)) if ir.size > 100 else None
+        ir_edges = np.quantile(ir, np.linspace(0, 1, 7)).astype(np.float64) if ir.size > 100 else None
         angle_edges = np.linspace(a_lo, a_hi + 1e-9, 6) if a_hi - a_lo > 1 else None
         return cls(np.linspace(0, rho_max + 1e-9, 6), (u_max + 1, v_max + 1) if positions else None, ir_edges,
                    angle_edges, windows)
@@ -139,7 +140,6 @@ class StopSums:
 
     def __init__(self) -> None:
         self.rows: dict[int, np.ndarray] = {}  # stop -> sums (see `add`)
-        self.median_z: dict[int, float] = {}
 
     def add(self, c: ModelData, pred: Prediction) -> None:
         fill_p = np.broadcast_to(np.asarray(pred.fill if pred.fill is not None else 1.0, dtype=float), c.z_m.shape)
@@ -148,15 +148,14 @@ class StopSums:
         z4 = c.z_m**4
         independent = (pred.var_m2 - common * z4) / z4 * gain
         frames = c.n / np.maximum(c.fill, 1e-12)
-        present = np.unique(c.stop)
-        for s in present:
-            m = slice(None) if len(present) == 1 else (c.stop == s)
+        slices = c.stop_slices()
+        for m in slices if slices is not None else [c.stop == s for s in np.unique(c.stop)]:
+            s = c.stop[m][0]
             f = c.fill[m]
             row = np.array([np.size(f), f.sum(), (f * (1 - f) / frames[m]).sum(), frames[m].sum(), fill_p[m].sum(),
                             c.z_m[m].sum(), independent[m].sum(), common[m].sum()])
             key = int(s)
             self.rows[key] = self.rows[key] + row if key in self.rows else row
-            self.median_z[key] = float(np.median(c.z_m[m]))  # a stop comes in one chunk
 
 
 def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Residuals:
@@ -165,10 +164,9 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
     layout = _Layout.of(d)
     sums = {name: BinSums() for name in ("range", "radius", "range_radius", "position", "brightness", "incidence")}
     stops = StopSums()
-    for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.chunks())):
-        columns = bin_columns(c, p)
-        for name, (groups, covariate) in layout.families(c).items():
-            sums[name].add(columns, groups, covariate)
+    for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.pieces())):
+        families = layout.families(c)
+        add_families([sums[name] for name in families], c, p, list(families.values()))
         stops.add(c, p)
     labels = layout.labels()
     done = {name: sums[name].finish(labels.get(name)) for name in sums if sums[name].sums}
@@ -200,7 +198,7 @@ def compare_along(fit: ModelFit, d: ModelData, groups_of: Callable[[ModelData], 
     models in the same bins)."""
     sums = BinSums()
     totals: list[dict[int, float]] = [{} for _ in range(1 + len(others))]
-    for c in d.chunks():
+    for c in d.pieces():
         groups, p = groups_of(c), fit.predict(c)
         sums.add(bin_columns(c, p), groups, covariate_of(c))
         for k, f in enumerate((fit, *others)):

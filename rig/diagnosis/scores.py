@@ -24,9 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..models import Model, ModelData, ModelFit
+from ..models.result import chi2_sf
 from ..models.determinacy import LambdaStatus, lambda_status
 from ..models.progress import ProgressCounter
 from .consistency import ALPHA, Consistency
@@ -109,7 +109,7 @@ def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
     return Headline(
         error_pct=100 * float(np.sqrt(np.mean(b.log_ratio**2))),
         noise_pct=100 * float(np.sqrt(np.mean(b.se_log**2))),
-        chi2=stat, dof=dof, p_value=float(chi2.sf(stat, dof)), bins=len(b.log_ratio),
+        chi2=stat, dof=dof, p_value=float(chi2_sf(stat, dof)), bins=len(b.log_ratio),
         consistency=r.consistency if checks else None,
         lambda_status=lambda_status(d, free=not fit.lam_fixed),
     )

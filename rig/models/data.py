@@ -35,6 +35,8 @@ from .rounding import grid_offset
 RANGE_BIN_M = 0.25
 #: rows of the chunks work over every pixel goes in (whole stops; about a full-resolution stop)
 CHUNK_ROWS = 400_000
+#: rows of the pieces the chunks are worked in (arrays that stay in the processor's cache)
+PIECE_ROWS = 65_536
 
 
 @dataclass(frozen=True)
@@ -175,6 +177,20 @@ class ModelData:
             if sl.stop - start >= CHUNK_ROWS or i == len(slices) - 1:
                 yield self._taken(slice(start, sl.stop), derived=True)
                 start = sl.stop
+
+    def pieces(self, rows: int | None = None, *, neighbours: bool = True) -> Iterator["ModelData"]:
+        """The data in pieces of at most `rows` rows (PIECE_ROWS), within `chunks`: what needs a whole stop (the
+        neighbours' variance and the true range, unless `neighbours` is False) is made for the stop first, and
+        the pieces share it, so the work over every pixel holds arrays of a piece, not of a stop."""
+        rows = rows or PIECE_ROWS
+        for c in self.chunks():
+            if len(c) <= rows:
+                yield c
+                continue
+            if neighbours:
+                c.z0_m  # the stop's own, from its neighbours, made once for all its pieces
+            for a in range(0, len(c), rows):
+                yield c._taken(slice(a, a + rows), derived=True)
 
     # -- sizes -----------------------------------------------------------------------------------
     def __len__(self) -> int:

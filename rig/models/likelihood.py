@@ -184,7 +184,7 @@ def model_loglik(model: Model, values: dict[str, float], d: ModelData) -> float:
     """The composite log-likelihood of `model` with parameter `values`, evaluated stop by stop."""
     prepare(d)
     sums = LoglikSums(d)
-    for c in d.chunks():
+    for c in d.pieces():
         pred: Prediction = model.predict(values, c)
         sums.add(c, pred.var_m2, pred.k4_m4, pred.fill)
     return sums.total() + gamma_constant(d)

@@ -76,8 +76,18 @@ class _Rows:
         self.v = np.empty(capacity, np.float32)
 
     def add(self, index: int, s, keep: np.ndarray) -> None:
+        a = self.size
+        if keep.all():  # every pixel (the usual case): whole images, no gathering
+            h, w = keep.shape
+            b = a + h * w
+            self.z[a:b], self.m2[a:b], self.m4[a:b], self.n[a:b] = (x.ravel() for x in (s.mean_m, s.m2_m2, s.m4_m4, s.count))
+            self.u[a:b] = np.tile(np.arange(w, dtype=np.float32), h)
+            self.v[a:b] = np.repeat(np.arange(h, dtype=np.float32), w)
+            self.stop[a:b] = index
+            self.size = b
+            return
         v, u = np.nonzero(keep)  # row-major, the order boolean indexing takes them in
-        a, b = self.size, self.size + len(u)
+        b = a + len(u)
         self.z[a:b] = s.mean_m[keep]
         self.m2[a:b] = s.m2_m2[keep]
         self.m4[a:b] = s.m4_m4[keep]
