@@ -29,9 +29,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from .data import ModelData
-from .group_sums import group_sums
 
 #: nodes the grouping aims at, in all (7 per tile)
 TARGET_NODES = 60_000
@@ -63,6 +63,9 @@ class GroupedData(ModelData):
     def chunks(self):
         yield self
 
+    def pieces(self, rows: int | None = None, *, neighbours: bool = True):
+        yield self  # one piece: the nodes carry their own weights, which a plain slice would lose
+
     def pixel_weights(self) -> np.ndarray:
         return self.weights[3]
 
@@ -78,7 +81,8 @@ def tile_size(d: ModelData) -> int:
 def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData:
     """Nodes for `d` with tiles of tile_px x tile_px pixels (see the module docstring); with `by_offset`, the
     pixels of small spread kept apart by their offset between depth levels, which is then a fourth axis of the
-    quadrature. A group of no more pixels than nodes keeps its pixels as they are."""
+    quadrature. A group of no more pixels than nodes keeps its pixels as they are. Sums over the pixels go in
+    compiled passes (`_plane_sums`, `_residuals`, `_moments`)."""
     from .likelihood import gamma_constant, likelihood_weights, prepare
 
     prepare(d)
@@ -95,17 +99,31 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
         fbin = np.where(spread < OFFSET_SPREAD, np.minimum((offset * 2 * OFFSET_BINS).astype(np.int64), OFFSET_BINS - 1),
                         OFFSET_BINS)
         key = key * (OFFSET_BINS + 1) + fbin
-    _, tile, count = np.unique(key, return_inverse=True, return_counts=True)
+    tile, count = _dense_index(key)
     dims = 4 if by_offset else 3
-    pooled = (count[tile] > 1 + 2 * dims) & ~_mean_off(d, tile, a)
-    _, tile = np.unique(tile[pooled], return_inverse=True)
-    rows = {"a": a, "b": b, "kw": kw, "pw": np.ones(len(d)), "u": u, "v": v, "lz": np.log(d.z0_m),
-            "ratio": d.z_m / d.z0_m, "n": d.n, "offset": offset, "stop": d.stop, "rg": rg}
-    nodes = _nodes({k: x[pooled] for k, x in rows.items()}, tile, dims)
+    lz = np.log(d.z0_m)
+    pooled = (count[tile] > 1 + 2 * dims) & ~_mean_off(d, tile, len(count), a, u, v, lz)
+    tile, count = _dense_index(np.where(pooled, tile, -1))
+    groups = len(count)
+    s = _plane_sums(tile, a, u, v, lz, (np.log(d.z_m / d.z0_m), d.n, offset), groups)
+    A = s[:, 0]
+    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
+    gu, gv = _plane_slopes(s, A, uc, vc, lzc)
+    ratio, n_mean, offset_mean = np.exp(s[:, 9] / A), s[:, 10] / A, s[:, 11] / A
+    e = _residuals(tile, u, v, lz, uc, vc, lzc, gu, gv)
+    axes = (u, v, e, offset)[:dims]
+    centre = np.stack([uc, vc, np.zeros(groups), offset_mean][:dims])
+    moments = _moments(tile, (a, b, kw, np.ones(len(d))), axes, centre, groups)  # (4, groups, 1 + 2 dims)
+    nodes = _nodes(moments, A, uc, vc, lzc, gu, gv, offset_mean, dims)
+    each = 1 + 2 * dims
+    first = _first_rows(np.where(pooled, tile, groups), groups + 1)[:-1]  # any pixel of the group
+    nodes.update({"ratio": np.repeat(ratio, each), "n": np.repeat(n_mean, each), "stop": np.repeat(d.stop[first], each),
+                  "rg": np.repeat(rg[first], each)})
     alone = ~pooled
-    parts = [nodes, {k: x[alone] for k, x in rows.items()}]
-    parts[1]["z0"] = d.z0_m[alone]
-    out = {k: np.concatenate([p[k] for p in parts]) for k in ("a", "b", "kw", "pw", "u", "v", "z0", "ratio", "n", "offset", "stop", "rg")}
+    pixels = {"a": a[alone], "b": b[alone], "kw": kw[alone], "pw": np.ones(int(alone.sum())), "u": u[alone], "v": v[alone],
+              "z0": d.z0_m[alone], "ratio": (d.z_m / d.z0_m)[alone], "n": d.n[alone], "offset": offset[alone],
+              "stop": d.stop[alone], "rg": rg[alone]}
+    out = {k: np.concatenate([nodes[k], pixels[k]]) for k in pixels}
     g = GroupedData(z_m=out["z0"] * out["ratio"], m2_m2=np.full(len(out["z0"]), np.nan), m4_m4=np.full(len(out["z0"]), np.nan),
                     n=out["n"], stop=out["stop"], u_px=out["u"], v_px=out["v"], fb_px_m=d.fb_px_m,
                     depth_unit_m=d.depth_unit_m, n_dropped_zero=d.n_dropped_zero, stops=d.stops, sources=d.sources,
@@ -123,50 +141,55 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
     return g
 
 
-def _nodes(r: dict[str, np.ndarray], tile: np.ndarray, dims: int) -> dict[str, np.ndarray]:
-    """The 1 + 2 dims nodes of every group (rows `r` of its pixels, `tile` their group): positions, ranges,
-    offsets and the four kinds of weight (module docstring)."""
-    a, u, v, lz = r["a"], r["u"], r["v"], r["lz"]
-    # the tile's centre (a-weighted), the spread of its positions and the plane of ln Z0 over them
-    _, s = group_sums(tile, [a, a * u, a * v, a * u * u, a * v * v, a * u * v, a * lz, a * u * lz, a * v * lz,
-                             a * np.log(r["ratio"]), a * r["n"], a * r["offset"]])
-    A = s[:, 0]
-    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
-    gu, gv = _plane_slopes(s, A, uc, vc, lzc)
-    offset_mean = s[:, 11] / A
-    du, dv = u - uc[tile], v - vc[tile]
-    e = lz - lzc[tile] - gu[tile] * du - gv[tile] * dv
-    xi = [du, dv, e, r["offset"] - offset_mean[tile]][:dims]
-    moments = [group_sums(tile, [w, *(w * x for x in xi), *(w * x * x for x in xi)])[1]
-               for w in (a, r["b"], r["kw"], r["pw"])]
+def _nodes(moments: np.ndarray, A: np.ndarray, uc: np.ndarray, vc: np.ndarray, lzc: np.ndarray, gu: np.ndarray,
+           gv: np.ndarray, offset_mean: np.ndarray, dims: int) -> dict[str, np.ndarray]:
+    """The 1 + 2 dims nodes of every group: positions, ranges, offsets and the four kinds of weight (module
+    docstring), from the groups' moments along each axis."""
     h = np.sqrt(dims * moments[0][:, 1 + dims:] / A[:, None])  # (groups, dims): the a-weights' centre node weighs 0
     count = 1 + 2 * dims  # the centre, then -h and +h along each axis
     steps = np.zeros((count, dims))
     for i in range(dims):
         steps[1 + 2 * i, i], steps[2 + 2 * i, i] = -1.0, 1.0
     at = steps[None, :, :] * h[:, None, :]  # (groups, nodes, dims)
-    first = _first_rows(tile, len(A))  # any pixel of the group: its stop and range window
-
-    def each(x: np.ndarray) -> np.ndarray:
-        return np.repeat(x, count)
-
     wa, wb, wk, wp = (_node_weights(m, h).ravel() for m in moments)
     return {"a": wa, "b": wb, "kw": wk, "pw": wp, "u": (uc[:, None] + at[:, :, 0]).ravel(),
             "v": (vc[:, None] + at[:, :, 1]).ravel(),
             "z0": np.exp(lzc[:, None] + gu[:, None] * at[:, :, 0] + gv[:, None] * at[:, :, 1] + at[:, :, 2]).ravel(),
-            "ratio": each(np.exp(s[:, 9] / A)), "n": each(s[:, 10] / A),
-            "offset": (offset_mean[:, None] + (at[:, :, 3] if dims > 3 else 0.0)).ravel(),
-            "stop": each(r["stop"][first]), "rg": each(r["rg"][first])}
+            "offset": (offset_mean[:, None] + (at[:, :, 3] if dims > 3 else 0.0)).ravel()}
 
 
-def _mean_off(d: ModelData, tile: np.ndarray, a: np.ndarray) -> np.ndarray:
+def _dense_index(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's group as 0..G-1 in the order of `key` (negative keys: -1, in no group), and each group's rows.
+    By a table over the keys' span when it is not much larger than the rows (no sort), else by np.unique."""
+    ok = key >= 0
+    if not ok.any():
+        return np.full(len(key), -1, np.int64), np.zeros(0, np.int64)
+    lo, hi = int(key[ok].min()), int(key[ok].max())
+    if hi - lo < 4 * len(key) + 1024:
+        counts = np.bincount(key[ok] - lo, minlength=hi - lo + 1)
+        present = counts > 0
+        index = np.cumsum(present) - 1
+        return np.where(ok, index[np.where(ok, key - lo, 0)], -1), counts[present]
+    _, inverse, counts = np.unique(key[ok], return_inverse=True, return_counts=True)
+    out = np.full(len(key), -1, np.int64)
+    out[ok] = inverse
+    return out, counts
+
+
+def _mean_off(d: ModelData, tile: np.ndarray, groups: int, a: np.ndarray, u: np.ndarray, v: np.ndarray,
+              lz: np.ndarray) -> np.ndarray:
     """Pixels whose measured mean is further from their tile's plane of ln Z0 than OFF_MEAN times the larger of
     their mean's standard error and the spread of their stop's pixels about their planes (robust: 1.4826 x the
     median absolute deviation; the wall's relief is part of it): mismatched samples pulled the mean and raised
     the variance together, so such a pixel's range and variance co-vary in a heavy tail a second-order
-    expansion does not follow. They stay pixels."""
-    u, v, lz = d.u_px.astype(np.float64), d.v_px.astype(np.float64), np.log(d.z0_m)
-    e = _plane_residual(tile, a, u, v, lz)
+    expansion does not follow. And a pixel that alone makes DOMINANT of its tile's spread of range sets the
+    tile's nodes. They stay pixels."""
+    none = (a,)  # no extra column needed here; one is summed and not read (numba types no empty tuple)
+    s = _plane_sums(tile, a, u, v, lz, none, groups)
+    A = s[:, 0]
+    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
+    gu, gv = _plane_slopes(s, A, uc, vc, lzc)
+    e = _residuals(tile, u, v, lz, uc, vc, lzc, gu, gv)
     neighbours, _ = d.neighbour_variance
     scale = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2) / d.n) / d.z0_m
     slices = d.stop_slices() or [np.flatnonzero(d.stop == s) for s in np.unique(d.stop)]
@@ -175,24 +198,14 @@ def _mean_off(d: ModelData, tile: np.ndarray, a: np.ndarray) -> np.ndarray:
         spread = 1.4826 * np.median(np.abs(es - np.median(es)))
         scale[rows] = np.maximum(scale[rows], spread)
     off = np.abs(e) > OFF_MEAN * scale
-    # and a pixel that alone makes DOMINANT of its tile's spread of range sets the tile's nodes: it stays a pixel too
     share = a * e * e
-    _, total = group_sums(tile, [np.where(off, 0.0, share)])
-    return off | (share > DOMINANT * total[tile, 0])
-
-
-def _plane_residual(tile: np.ndarray, a: np.ndarray, u: np.ndarray, v: np.ndarray, lz: np.ndarray) -> np.ndarray:
-    """Each pixel's ln Z0 less its tile's a-weighted least-squares plane over (u, v)."""
-    _, s = group_sums(tile, [a, a * u, a * v, a * u * u, a * v * v, a * u * v, a * lz, a * u * lz, a * v * lz])
-    A = s[:, 0]
-    uc, vc, lzc = s[:, 1] / A, s[:, 2] / A, s[:, 6] / A
-    gu, gv = _plane_slopes(s, A, uc, vc, lzc)
-    return lz - lzc[tile] - gu[tile] * (u - uc[tile]) - gv[tile] * (v - vc[tile])
+    total = _plane_sums(np.where(off, -1, tile), share, u, v, lz, none, groups)[:, 0]
+    return off | (share > DOMINANT * total[np.maximum(tile, 0)])
 
 
 def _plane_slopes(s: np.ndarray, A: np.ndarray, uc: np.ndarray, vc: np.ndarray, lzc: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The slopes of ln Z0 over u and v per tile, from the sums of `_plane_residual` (columns 3-8)."""
+    """The slopes of ln Z0 over u and v per tile, from the sums of `_plane_sums` (columns 3-8)."""
     suu, svv, suv = s[:, 3] / A - uc * uc, s[:, 4] / A - vc * vc, s[:, 5] / A - uc * vc
     sul, svl = s[:, 7] / A - uc * lzc, s[:, 8] / A - vc * lzc
     det = suu * svv - suv * suv
@@ -200,6 +213,62 @@ def _plane_slopes(s: np.ndarray, A: np.ndarray, uc: np.ndarray, vc: np.ndarray, 
     gu = np.where(ok, (svv * sul - suv * svl) / np.where(ok, det, 1.0), np.where(suu > 0, sul / np.maximum(suu, 1e-300), 0.0))
     gv = np.where(ok, (suu * svl - suv * sul) / np.where(ok, det, 1.0), np.where(svv > 0, svl / np.maximum(svv, 1e-300), 0.0))
     return gu, gv
+
+
+@njit(cache=True, nogil=True)
+def _plane_sums(tile, a, u, v, lz, extra, groups):  # pragma: no cover - compiled
+    """Per group (rows with tile < 0 left out): sum a, a u, a v, a u^2, a v^2, a u v, a lz, a u lz, a v lz, then
+    a x for each array x of the tuple `extra`."""
+    k = len(extra)
+    s = np.zeros((groups, 9 + k))
+    for i in range(tile.size):
+        t = tile[i]
+        if t < 0:
+            continue
+        w, x, y, z = a[i], u[i], v[i], lz[i]
+        s[t, 0] += w
+        s[t, 1] += w * x
+        s[t, 2] += w * y
+        s[t, 3] += w * x * x
+        s[t, 4] += w * y * y
+        s[t, 5] += w * x * y
+        s[t, 6] += w * z
+        s[t, 7] += w * x * z
+        s[t, 8] += w * y * z
+        for j in range(k):
+            s[t, 9 + j] += w * extra[j][i]
+    return s
+
+
+@njit(cache=True, nogil=True)
+def _residuals(tile, u, v, lz, uc, vc, lzc, gu, gv):  # pragma: no cover - compiled
+    """Each pixel's ln Z0 less its tile's plane over (u, v) (0 for rows in no tile)."""
+    e = np.zeros(tile.size)
+    for i in range(tile.size):
+        t = tile[i]
+        if t >= 0:
+            e[i] = lz[i] - lzc[t] - gu[t] * (u[i] - uc[t]) - gv[t] * (v[i] - vc[t])
+    return e
+
+
+@njit(cache=True, nogil=True)
+def _moments(tile, weights, axes, centre, groups):  # pragma: no cover - compiled
+    """For each kind of weight w and group: sum w, then sum w xi_i and sum w xi_i^2 along each axis, xi the pixel's
+    offset from the group's centre along it (e, the range residual, has centre 0)."""
+    kinds, dims = len(weights), len(axes)
+    m = np.zeros((kinds, groups, 1 + 2 * dims))
+    for i in range(tile.size):
+        t = tile[i]
+        if t < 0:
+            continue
+        for q in range(kinds):
+            w = weights[q][i]
+            m[q, t, 0] += w
+            for j in range(dims):
+                x = axes[j][i] - centre[j, t]
+                m[q, t, 1 + j] += w * x
+                m[q, t, 1 + dims + j] += w * x * x
+    return m
 
 
 def _node_weights(m: np.ndarray, h: np.ndarray) -> np.ndarray:
