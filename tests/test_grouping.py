@@ -15,7 +15,7 @@ import pytest
 from protocols import Runner, perpendicular, tilted
 from rig.devices import open_devices
 from rig.models import ModelData, parse_model
-from rig.models.grouping import GroupedData
+from rig.models.grouping import GroupedData, group, tile_size
 from rig.models.optimise import _standard_errors, fit_data
 
 CAMERA = "fake:width=424,height=240,depth_unit_mm=0.1,seed=5,effects=noise_floor(sigma_px=0.02)+slant_range"
@@ -100,3 +100,12 @@ def test_nodes_carry_the_weights_of_the_pixels_they_stand_for(sweep_data):
         assert gb[gm].sum() == pytest.approx(b[m].sum(), rel=1e-9)
         assert gkw[gm].sum() == pytest.approx(kw[m].sum(), rel=1e-9)
     assert len(g) < len(sweep_data) / 3
+
+
+def test_every_node_array_has_a_value_per_node(sweep_data, coarse_unit_data):
+    """Plain and offset-binned nodes alike: each per-row array, the grid offset included, has one value per row."""
+    for d, by_offset in ((sweep_data, False), (coarse_unit_data, True), (sweep_data, True)):
+        g = group(d, tile_size(d), by_offset=by_offset)
+        for name in ("z_m", "z0_m", "u_px", "v_px", "n", "stop", "grid_offset", "range_group"):
+            assert len(getattr(g, name)) == len(g), (name, by_offset)
+        assert all(len(w) == len(g) for w in g.weights)

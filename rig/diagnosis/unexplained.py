@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
 from ..models.empirical import COVARIATES, EmpiricalFrameMean, is_empirical
+from ..models.parallel import fit_models
 from ..models.progress import ProgressCounter
 from .consistency import Check
 from .scores import Headline, headline
@@ -104,7 +105,8 @@ def _shapes_for(check: Check | None, head: Headline) -> tuple[str, list[str]]:
     return check.name, [FAMILY_SHAPE[check.quantity]]
 
 
-def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: ProgressCounter | None = None) -> Unexplained:
+def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: ProgressCounter | None = None,
+                     jobs: int = 1) -> Unexplained:
     """Add empirical terms to `fit`'s model, worst failing family first, until within noise (or MAX_TERMS)."""
     counter = counter or ProgressCounter(None, 1)
     out = Unexplained(fit, head, [])
@@ -128,8 +130,8 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: Pr
             break
         trials = []
         counter.expect(len(shapes) + 1)
+        fitting: list[tuple[str, Effect]] = []
         for covariate in shapes:
-            counter.step(f"fitting an empirical shape over {covariate}")
             term = empirical(covariate)
             why = term.applicable(d)
             if why:
@@ -137,9 +139,29 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: Pr
                 continue
             if isinstance(term, EmpiricalFrameMean):
                 term.measure(current_fit.predict(d), d)  # measured against the model it joins, not fitted
-            # only the shape's own parameters free: a quick, fair comparison of the shapes
-            f = (current_fit.model + term).fit(d, start=current_fit.values, errors=False, hold=frozenset(current_fit.values))
-            trials.append(ShapeTrial(covariate, f, f.bic - current_fit.bic))
+            else:
+                term.start(d, None)  # its knots, from these data, before any worker fits it
+            fitting.append((covariate, term))
+        if fitting:
+            counter.step(f"fitting an empirical shape over {fitting[0][0]}")
+
+        finished = [0]
+
+        def done(i: int) -> None:
+            finished[0] += 1
+            if finished[0] < len(fitting):
+                counter.step(f"fitting an empirical shape over {fitting[i + 1][0]}" if jobs <= 1 else
+                             f"fitting empirical shapes ({finished[0]} of {len(fitting)} done)")
+
+        # only the shape's own parameters free: a quick, fair comparison of the shapes
+        fits = fit_models([current_fit.model + term for _, term in fitting], d, current_fit.values, jobs=jobs,
+                          hold=frozenset(current_fit.values), done=done)
+        for (covariate, _), f in zip(fitting, fits):
+            if isinstance(f, ValueError):
+                trials.append(ShapeTrial(covariate, None, float("inf"), str(f)))
+            else:
+                trials.append(ShapeTrial(covariate, f, f.bic - current_fit.bic))
+        trials.sort(key=lambda t: shapes.index(t.covariate))
         usable = [t for t in trials if t.fit is not None]
         if not usable:
             break

@@ -217,7 +217,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
         steps.append(Step(best.fit, after, best, equivalent))
     unexplained = None
     if explain and not steps[-1].headline.within_noise:
-        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter)
+        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter, jobs=jobs)
     counter.step("residuals")
     result = Diagnosis(source, d, steps, pl, residuals(fit, d), unexplained)
     counter.finish()

@@ -93,10 +93,9 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
     key = ((d.stop.astype(np.int64) * (int(rg.max() - rg.min()) + 1) + (rg - rg.min())) * (int(tv.max()) + 1) + tv) \
         * (int(tu.max()) + 1) + tu
     offset = np.abs(d.grid_offset)
+    by_offset = by_offset and bool(rounding_matters(d).any())
     if by_offset:
-        neighbours, _ = d.neighbour_variance
-        spread = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2)) / d.depth_unit_m
-        fbin = np.where(spread < OFFSET_SPREAD, np.minimum((offset * 2 * OFFSET_BINS).astype(np.int64), OFFSET_BINS - 1),
+        fbin = np.where(rounding_matters(d), np.minimum((offset * 2 * OFFSET_BINS).astype(np.int64), OFFSET_BINS - 1),
                         OFFSET_BINS)
         key = key * (OFFSET_BINS + 1) + fbin
     tile, count = _dense_index(key)
@@ -141,6 +140,16 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
     return g
 
 
+def rounding_matters(d: ModelData) -> np.ndarray:
+    """The pixels whose rounded variance depends on where their mean sits between depth levels: a spread (the
+    neighbours' variance, else their own) under OFFSET_SPREAD depth units. Kept with `d`."""
+    if "rounding_matters" not in d.__dict__:
+        neighbours, _ = d.neighbour_variance
+        spread = np.sqrt(np.where(np.isfinite(neighbours), neighbours, d.s2_m2)) / d.depth_unit_m
+        d.__dict__["rounding_matters"] = spread < OFFSET_SPREAD
+    return d.__dict__["rounding_matters"]
+
+
 def _nodes(moments: np.ndarray, A: np.ndarray, uc: np.ndarray, vc: np.ndarray, lzc: np.ndarray, gu: np.ndarray,
            gv: np.ndarray, offset_mean: np.ndarray, dims: int) -> dict[str, np.ndarray]:
     """The 1 + 2 dims nodes of every group: positions, ranges, offsets and the four kinds of weight (module
@@ -155,7 +164,7 @@ def _nodes(moments: np.ndarray, A: np.ndarray, uc: np.ndarray, vc: np.ndarray, l
     return {"a": wa, "b": wb, "kw": wk, "pw": wp, "u": (uc[:, None] + at[:, :, 0]).ravel(),
             "v": (vc[:, None] + at[:, :, 1]).ravel(),
             "z0": np.exp(lzc[:, None] + gu[:, None] * at[:, :, 0] + gv[:, None] * at[:, :, 1] + at[:, :, 2]).ravel(),
-            "offset": (offset_mean[:, None] + (at[:, :, 3] if dims > 3 else 0.0)).ravel()}
+            "offset": (offset_mean[:, None] + at[:, :, 3]).ravel() if dims > 3 else np.repeat(offset_mean, count)}
 
 
 def _dense_index(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

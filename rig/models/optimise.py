@@ -43,7 +43,8 @@ def _from_free(y: float, p: Param) -> float:
     return y
 
 
-def _hessian(f, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+def _hessian(f, x: np.ndarray, steps: np.ndarray, *, diagonal: bool = False) -> np.ndarray:
+    """Central differences: each second derivative from f at x +- the steps (the diagonal alone: 2n + 1 values)."""
     n = len(x)
     h = np.zeros((n, n))
     f0 = f(x)
@@ -51,7 +52,7 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
         ei = np.zeros(n)
         ei[i] = steps[i]
         h[i, i] = (f(x + ei) - 2 * f0 + f(x - ei)) / steps[i] ** 2
-        for j in range(i + 1, n):
+        for j in range(i + 1, n if not diagonal else i + 1):
             ej = np.zeros(n)
             ej[j] = steps[j]
             h[i, j] = h[j, i] = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (4 * steps[i] * steps[j])
@@ -141,11 +142,12 @@ def fit_data(model: Model, d: ModelData) -> ModelData:
     """What `model` is fitted on: the grouped nodes of `d` (made once, kept with `d`; apart by grid offset where the
     model rounds to the depth unit) when the data are large enough and every effect of the model is smooth within
     a tile (`Effect.groupable`); else `d` itself."""
-    from .grouping import group, tile_size
+    from .grouping import group, rounding_matters, tile_size
 
     if isinstance(getattr(d, "weights", None), tuple) or not all(getattr(e, "groupable", True) for e in model.effects):
         return d
     by_offset = any(getattr(e, "by_grid_offset", False) for e in model.effects)
+    by_offset = by_offset and tile_size(d) > 0 and bool(rounding_matters(d).any())  # else the plain nodes serve
     key = "grouped_by_offset" if by_offset else "grouped"
     if key not in d.__dict__:
         t = tile_size(d)
@@ -175,8 +177,9 @@ def _standard_errors(model: Model, values: dict[str, float], d: ModelData,
                      names: list[str]) -> tuple[dict[str, float], np.ndarray | None]:
     """Cramer-Rao standard errors from the inverse of the observed information (minus the Hessian), and the covariance.
 
-    The Hessian is taken by central differences twice: first with steps of 1e-4 of each value, then with steps of
-    a fifth of each parameter's error with the others held, 1 / sqrt(-H_ii) (kept inside the parameters' bounds):
+    The Hessian is taken by central differences twice: first its diagonal, with steps of 1e-4 of each value, then
+    the whole with steps of a fifth of each parameter's error with the others held, 1 / sqrt(-H_ii) (kept inside the
+    parameters' bounds):
     the curvature at the scale of the uncertainty itself, which is what the errors describe where the likelihood
     is not quadratic over the first steps (outliers' fraction and width: the first steps gave errors 2x too small).
     With k and lambda both free, k is taken at the data's middle range, k_ref = k z_ref^lambda, as the paper's fit
@@ -215,8 +218,16 @@ def _standard_errors(model: Model, values: dict[str, float], d: ModelData,
         jac[ik, ik] = math.exp(-x[il] * log_ref)
         jac[ik, il] = -x[ik] * log_ref
     with np.errstate(all="ignore"):
-        for _ in range(2):
-            h = _hessian(f, u0, steps)
+        for first in (True, False):
+            # the first pass needs only the diagonal (each parameter's error with the others held), for the steps
+            h = _hessian(f, u0, steps, diagonal=first and len(names) > 1)
+            if first and len(names) > 1:
+                held = 1.0 / np.sqrt(np.where(-np.diag(h) > 0, -np.diag(h), np.nan))
+                if not np.all(np.isfinite(held)):
+                    h = _hessian(f, u0, steps)  # a flat or wrong-signed direction: the errors say so, from the whole
+                else:
+                    steps = np.minimum(0.2 * held, np.where(room > 0, 0.5 * room, steps))
+                    continue
             try:
                 c = jac @ np.linalg.inv(-h) @ jac.T
             except np.linalg.LinAlgError:

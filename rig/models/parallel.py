@@ -23,25 +23,26 @@ from .optimise import fit_data
 from .result import ModelFit
 
 #: what the forked workers read (set before the pool starts, so each inherits it)
-_JOB: tuple[list[Model], ModelData, dict[str, float] | None] | None = None
+_JOB: tuple[list[Model], ModelData, dict[str, float] | None, frozenset[str]] | None = None
 
 
 def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None = None, *, jobs: int = 1,
-               done: Callable[[int], None] | None = None) -> list[ModelFit | ValueError]:
-    """Each model fitted (without standard errors) from `start`, in order; a model that cannot be fitted gives
-    its ValueError (an `EffectFileError` is raised). `done(i)` is called as model i finishes."""
+               hold: frozenset[str] = frozenset(), done: Callable[[int], None] | None = None) -> list[ModelFit | ValueError]:
+    """Each model fitted (without standard errors) from `start`, the parameters in `hold` held there, in order; a
+    model that cannot be fitted gives its ValueError (an `EffectFileError` is raised). `done(i)` is called as
+    model i finishes. Effects that keep state (an empirical shape's knots) must have it before the call."""
     global _JOB
     forkable = "fork" in multiprocessing.get_all_start_methods() and threading.current_thread() is threading.main_thread()
     if jobs <= 1 or len(models) <= 1 or not forkable:
         out = []
         for i, m in enumerate(models):
-            out.append(_fit(m, d, start))
+            out.append(_fit(m, d, start, hold))
             if done is not None:
                 done(i)
         return [_raised(r) for r in out]
     for m in models:
         fit_data(m, d)  # grouped nodes made here, once, not in every worker
-    _JOB = (models, d, start)
+    _JOB = (models, d, start, hold)
     try:
         results: list = [None] * len(models)
         pool = multiprocessing.get_context("fork").Pool(min(jobs, len(models)), initializer=_quiet_signals)
@@ -61,11 +62,11 @@ def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None
     return [_raised(r) for r in results]
 
 
-def _fit(m: Model, d: ModelData, start: dict[str, float] | None) -> ModelFit | Exception:
+def _fit(m: Model, d: ModelData, start: dict[str, float] | None, hold: frozenset[str]) -> ModelFit | Exception:
     from .user_effects import EffectFileError
 
     try:
-        return m.fit(d, start=start, errors=False)
+        return m.fit(d, start=start, errors=False, hold=hold)
     except EffectFileError as e:
         return e
     except ValueError as e:
@@ -82,8 +83,8 @@ def _quiet_signals() -> None:
 def _fit_in_worker(i: int) -> tuple[int, object]:
     """In a worker: fit model i; send back the fit without its effects (the parent puts its own model back: a
     user's effects may not pickle), or the error."""
-    models, d, start = _JOB  # type: ignore[misc]
-    r = _fit(models[i], d, start)
+    models, d, start, hold = _JOB  # type: ignore[misc]
+    r = _fit(models[i], d, start, hold)
     return i, (r if isinstance(r, Exception) else replace(r, model=Model(models[i].base)))
 
 
