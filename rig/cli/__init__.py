@@ -72,7 +72,6 @@ def main(argv: list[str] | None = None) -> int:
     from protocols.disk_space import is_disk_full
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    _return_large_blocks_at_once()
     previous = _terminate_like_interrupt()
     try:
         return run_command(argv)
@@ -91,21 +90,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-
-
-def _return_large_blocks_at_once() -> None:
-    """glibc keeps freed blocks of the size of a stop's arrays on its heap once it has seen a few (its mmap threshold
-    rises by itself): a command that reads stop after stop then holds ~100 MB it no longer uses. A fixed 1 MB
-    threshold gives blocks that large back when they are freed (rig fit's peak on a full sweep: 513 -> 490 MB,
-    for 0.3 s more of page faults). The work over every pixel goes in pieces far below it. Elsewhere: nothing."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.mallopt(-3, 1 << 20)  # M_MMAP_THRESHOLD
-    except (OSError, AttributeError):
-        pass
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:

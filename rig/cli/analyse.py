@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .memory import return_large_blocks_at_once
 from .options import EXIT_UNDETERMINED, refuse_unwritable, verbosity
 from .usage import UsageError
 
@@ -107,6 +108,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     refuse_unwritable(args.plot, "--plot")
     refuse_unwritable(args.table, "--table")
+    if not args.model and not args.many:
+        return_large_blocks_at_once()
     if args.many:
         return _fit_many(args)
     if args.model:

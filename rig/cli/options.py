@@ -47,3 +47,4 @@ def refuse_unwritable(path: str | Path | None, option: str, *, folder: bool = Fa
     if problem:
         what = "a folder" if folder else "a file"
         raise UsageError(f"cannot write {option} {path}: {problem}; give {option} {what} you can write to")
+
