@@ -81,26 +81,34 @@ class PixelMomentAccumulator:
         return inv_sum / n_valid / self.depth_scale_m
 
     def result(self) -> PixelStats:
-        n = self.count.astype(np.float64)
-        count = self.count.astype(np.int64)
-        scale = self.depth_scale_m
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv_n = np.where(count > 0, 1.0 / n, 0.0)
-            # exact in integers: n*M2 = n*S2 - S1^2 (in units^2)
-            n_m2 = count * self.s2 - self.s1 * self.s1
-            m2 = n_m2.astype(np.float64) * inv_n
-            a = self.s1.astype(np.float64) * inv_n  # shifted mean, in units
-            s2f = self.s2.astype(np.float64)
-            m3 = self.s3 - 3 * a * s2f + 2 * n * a**3
-            m4 = self.s4 - 4 * a * self.s3 + 6 * a * a * s2f - 3 * n * a**4
-        mean_units = np.where(count > 0, self.shift + a, np.nan)
-        return PixelStats(
-            count=self.count.copy(),
-            mean_m=mean_units * scale,
-            m2_m2=m2 * scale**2,
-            m3_m3=m3 * scale**3,
-            m4_m4=m4 * scale**4,
-        )
+        """The stop's statistics, in one compiled pass over the pixels (`_central`)."""
+        shape = self.shape
+        mean, m2, m3, m4 = (np.empty(shape) for _ in range(4))
+        _central(self.count, self.shift, self.s1, self.s2, self.s3, self.s4, self.depth_scale_m, mean, m2, m3, m4)
+        return PixelStats(count=self.count.copy(), mean_m=mean, m2_m2=m2, m3_m3=m3, m4_m4=m4)
+
+
+@njit(cache=True, nogil=True)
+def _central(count, shift, s1, s2, s3, s4, scale, mean, m2, m3, m4):  # pragma: no cover - compiled
+    """Central moments from the shifted power sums, per pixel: n M2 = n S2 - S1^2 exactly in integers, then with
+    a = S1 / n, M3 = S3 - 3 a S2 + 2 n a^3 and M4 = S4 - 4 a S3 + 6 a^2 S2 - 3 n a^4; in m, m^2, m^3, m^4 (mean NaN
+    and the sums 0 where there is no sample)."""
+    h, w = count.shape
+    for r in range(h):
+        for c in range(w):
+            k = np.int64(count[r, c])
+            if k == 0:
+                mean[r, c] = np.nan
+                m2[r, c] = m3[r, c] = m4[r, c] = 0.0
+                continue
+            n = np.float64(k)
+            inv_n = 1.0 / n
+            a = np.float64(s1[r, c]) * inv_n  # shifted mean, in units
+            s2f = np.float64(s2[r, c])
+            m2[r, c] = np.float64(k * s2[r, c] - s1[r, c] * s1[r, c]) * inv_n * scale * scale
+            m3[r, c] = (s3[r, c] - 3 * a * s2f + 2 * n * a**3) * scale**3
+            m4[r, c] = (s4[r, c] - 4 * a * s3[r, c] + 6 * a * a * s2f - 3 * n * a**4) * scale**4
+            mean[r, c] = (np.float64(shift[r, c]) + a) * scale
 
 
 @njit(cache=True, nogil=True)

@@ -94,7 +94,7 @@ def _decode_png(path: Path, shape: tuple[int, int]) -> np.ndarray:
     try:
         with Image.open(path) as im:
             im.load()
-            a = np.array(im)
+            a = np.asarray(im)
     except Exception as e:  # Pillow raises many kinds for damaged files
         raise FolderImportError(f"{path}: unreadable PNG ({one_line(e)})") from None
     if a.shape != shape:
