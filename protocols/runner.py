@@ -354,9 +354,10 @@ class Runner:
         )
         c = stats.count[cy, cx] > 1
         sigma_c = float(np.sqrt(np.mean(stats.variance_m2[cy, cx][c]))) if c.any() else float("nan")
+        mean_c = float(np.mean(stats.mean_m[cy, cx][c])) if c.any() else float("nan")  # no valid centre: nan, no warning
         self.progress(ProgressEvent("stop_done", step.stop, index, n_stops, n_frames=step.n_frames,
                                     summary={"fill_rate": fill, "center_sigma_m": sigma_c,
-                                             "center_mean_m": float(np.nanmean(stats.mean_m[cy, cx])),
+                                             "center_mean_m": mean_c,
                                              "position_m": measured_m, "frames_dropped": continuity.dropped,
                                              "frames_duplicated": continuity.duplicated}))
 
