@@ -36,8 +36,13 @@ def commands(sweep: Path, workdir: Path) -> list[Figure]:
                "the same script"),
     ]
     model_cpu, _, model_wall, _ = run_measured([RIG, "-q", "fit", str(sweep), "--model", THREE_EFFECTS, "--no-held-out"])
-    out.append(Figure(f"rig fit --model {THREE_EFFECTS} on the sweep, CPU", model_cpu, base_cpu, "s", "< 10 s",
-                      model_cpu < 10.0, "the paper's script", note=f"wall {model_wall:.1f} s (without the held-out score)"))
+    out.append(Figure(f"rig fit --model {THREE_EFFECTS} --no-held-out on the sweep, CPU", model_cpu, base_cpu, "s",
+                      "< 10 s", model_cpu < 10.0, "the paper's script", note=f"wall {model_wall:.1f} s"))
+    # as a user runs it: with the held-out score (eleven refits, one stop left out each, in --jobs processes)
+    held_cpu, held_mb, held_wall, _ = run_measured([RIG, "-q", "fit", str(sweep), "--model", THREE_EFFECTS])
+    out.append(Figure(f"rig fit --model {THREE_EFFECTS} on the sweep (with its held-out score), wall", held_wall,
+                      base_cpu, "s", "< 10 s", held_wall < 10.0, "the paper's script (CPU)",
+                      note=f"CPU {held_cpu:.1f} s over the processes; peak {held_mb:.0f} MB"))
     with tempfile.TemporaryDirectory() as tmp:
         diag_cpu, diag_mb, diag_wall, _ = run_measured([RIG, "-q", "diagnose", str(sweep), "--out", tmp])
     out.append(Figure("rig diagnose (every candidate) on the sweep, wall", diag_wall, base_cpu, "s", "< 30 s",

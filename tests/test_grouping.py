@@ -109,3 +109,22 @@ def test_every_node_array_has_a_value_per_node(sweep_data, coarse_unit_data):
         for name in ("z_m", "z0_m", "u_px", "v_px", "n", "stop", "grid_offset", "range_group"):
             assert len(getattr(g, name)) == len(g), (name, by_offset)
         assert all(len(w) == len(g) for w in g.weights)
+
+
+def test_stops_left_out_share_the_whole_datas_nodes_and_statistics(sweep_data):
+    """`ModelData.whole_stops` (the held-out score's parts): the nodes of the kept stops and the statistics carried
+    over from the whole data give the same fit as measuring and grouping the kept stops afresh (within 0.1 SE), and
+    the same data-only constant and fill by stop."""
+    from rig.models.likelihood import gamma_constant
+
+    m = parse_model("active+noise_floor+outliers")
+    fit_data(m, sweep_data)  # the whole data's nodes, which whole_stops hands on
+    keep = sweep_data.stop != sweep_data.stop[0]
+    shared, fresh = sweep_data.whole_stops(keep, statistics=False), sweep_data.select(keep)
+    assert isinstance(fit_data(m, shared), GroupedData) and fit_data(m, shared).full is shared
+    assert gamma_constant(shared) == pytest.approx(gamma_constant(fresh), rel=1e-12)
+    assert np.array_equal(shared.fill_by_stop[0], fresh.fill_by_stop[0])
+    assert np.allclose(shared.fill_by_stop[1], fresh.fill_by_stop[1], rtol=1e-12)
+    a, b = m.fit(shared, errors=False), m.fit(fresh)
+    for name, se in b.errors.items():
+        assert abs(a.values[name] - b.values[name]) < 0.1 * se, (name, a.values[name], b.values[name], se)

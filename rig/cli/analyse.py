@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     p.add_argument("--many", action="store_true", help="RECORDING is a folder: fit every *.h5 in it, one process per "
                                                        "core (--jobs), a line each (with --json: one document a line)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="processes for --many (default: one per core)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="processes for --many and for the held-out score's refits (default: one per core)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_fit)
 
@@ -39,6 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="processes for the held-out score's refits (default: one per core)")
     _add_effects_arg(p)
     p.set_defaults(func=cmd_compare)
 
@@ -196,7 +199,7 @@ def _fit_model(args: argparse.Namespace) -> int:
             raise UsageError(str(e)) from None
         counter.step("headline error: every statistic the model predicts")
         h = headline(f, d)
-        nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter)
+        nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter, jobs=max(1, args.jobs))
         counter.finish()
     if args.json:
         from ..reports.result_json import document, dumps, fit_json
@@ -238,7 +241,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             except ValueError as e:
                 raise UsageError(str(e)) from None
             counter.step(f"headline error of {m.name}")
-            rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f, counter=counter)))
+            rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f, counter=counter, jobs=max(1, args.jobs))))
         counter.finish()
     best = min(rows, key=lambda r: r[1].bic)
     if args.json:

@@ -7,9 +7,11 @@ means physically (`explanation`). They compose with a base model: `active + slan
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import numpy as np
+from numba import njit
 
 from .composition import Component
 from .data import ModelData
@@ -246,28 +248,42 @@ class Outliers(Effect):
 
     def apply(self, pred, p, d):
         f, w = p["outliers.fraction"], p["outliers.width_px"]
-        fb, z = d.fb_px_m, d.z0_m
-        d0 = fb / z
-        # mismatches beyond the deepest range the depth format holds (65535 units) read as no data
-        u_lo = np.maximum(-w, fb / (MAX_DEPTH_UNITS * d.depth_unit_m) - d0)
-        u_lo = np.minimum(u_lo, w - 1e-9)
-        span = w - u_lo
-        mean_o = fb * np.log((d0 + w) / (d0 + u_lo)) / span
-        var_o = fb**2 * (1 / (d0 + u_lo) - 1 / (d0 + w)) / span - mean_o**2
-        kept = span / (2 * w)
-        f_all = f
-        f = f_all * kept / (1 - f_all + f_all * kept)
-        pred.fill = (pred.fill if pred.fill is not None else 1.0) * (1 - f_all + f_all * kept)
-        w_eff = span / 2
-        m = (1 - f) * z + f * mean_o
-        var0 = pred.var_m2
-        var = (1 - f) * (var0 + (z - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
-        a2 = d.disparity_to_range(w_eff**2)
-        k40 = pred.k4_m4 if pred.k4_m4 is not None else 0.0
-        m4_lin = (1 - f) * (3 * var0**2 + k40) + f * a2**2 / 5
-        var_lin = (1 - f) * var0 + f * a2 / 3
+        z = np.asarray(d.z0_m, dtype=np.float64)
+        var0 = np.broadcast_to(np.asarray(pred.var_m2, dtype=np.float64), z.shape)
+        k40 = np.broadcast_to(np.asarray(0.0 if pred.k4_m4 is None else pred.k4_m4, dtype=np.float64), z.shape)
+        var, k4, kept_fill = _outlier_mixture(z, var0, k40, float(f), float(w), float(d.fb_px_m),
+                                              float(MAX_DEPTH_UNITS * d.depth_unit_m))
+        pred.fill = (pred.fill if pred.fill is not None else 1.0) * kept_fill
         pred.var_m2 = var
-        pred.k4_m4 = m4_lin * (var / var_lin) ** 2 - 3 * var**2
+        pred.k4_m4 = k4
+
+
+@njit(cache=True, nogil=True)
+def _outlier_mixture(z, var0, k40, f_all, w, fb, deepest_m):
+    """Outliers.apply's formulas (its docstring), pixel by pixel in one pass: (variance, fourth cumulant, share
+    of samples kept). Mismatches beyond the deepest range the depth format holds (65535 units) read as no data."""
+    n = z.shape[0]
+    var_out, k4_out, kept_out = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        zi = z[i]
+        d0 = fb / zi
+        u_lo = min(max(-w, fb / deepest_m - d0), w - 1e-9)
+        span = w - u_lo
+        mean_o = fb * math.log((d0 + w) / (d0 + u_lo)) / span
+        var_o = fb * fb * (1.0 / (d0 + u_lo) - 1.0 / (d0 + w)) / span - mean_o * mean_o
+        kept = span / (2.0 * w)
+        kept_out[i] = 1.0 - f_all + f_all * kept
+        f = f_all * kept / kept_out[i]
+        w_eff = span / 2.0
+        m = (1.0 - f) * zi + f * mean_o
+        v0 = var0[i]
+        var = (1.0 - f) * (v0 + (zi - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
+        a2 = (zi * zi / fb) ** 2 * w_eff * w_eff  # disparity_to_range(w_eff^2): (Z^2 / (f b))^2 var_d
+        m4_lin = (1.0 - f) * (3.0 * v0 * v0 + k40[i]) + f * a2 * a2 / 5.0
+        var_lin = (1.0 - f) * v0 + f * a2 / 3.0
+        var_out[i] = var
+        k4_out[i] = m4_lin * (var / var_lin) ** 2 - 3.0 * var * var
+    return var_out, k4_out, kept_out
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (

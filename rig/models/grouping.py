@@ -31,7 +31,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .data import ModelData
+from .data import ModelData, stops_of
 
 #: nodes the grouping aims at, in all (7 per tile)
 TARGET_NODES = 60_000
@@ -138,6 +138,28 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
     g.full = d
     g.tile_px = tile_px
     return g
+
+
+def nodes_of_stops(g: GroupedData, d: ModelData) -> GroupedData:
+    """The nodes of `g` that stand for the stops of `d` (whole stops of the data `g` was grouped from, with their
+    per-pixel statistics): what grouping `d` itself would give with g's tile size, since no tile spans two stops
+    and every pixel's weights come from its own stop; the data-only constant and the fill table are d's."""
+    from .likelihood import gamma_constant
+
+    stops = stops_of(d)
+    keep = (np.bincount(stops, minlength=int(g.stop.max()) + 1) > 0)[g.stop]
+    out = GroupedData(z_m=g.z_m[keep], m2_m2=g.m2_m2[keep], m4_m4=g.m4_m4[keep], n=g.n[keep], stop=g.stop[keep],
+                      u_px=g.u_px[keep], v_px=g.v_px[keep], **{k: v[keep] for k, v in g._cols.items()}, **g._known())
+    for name in ("z0_m", "grid_offset", "range_group"):
+        out.__dict__[name] = g.__dict__[name][keep]
+    out.__dict__["kurtosis_by_range"] = d.kurtosis_by_range
+    out.weights = tuple(w[keep] for w in g.weights)
+    out.constant = gamma_constant(d)
+    _, measured, se = d.fill_by_stop
+    out.fill_table = (stops, measured, se)
+    out.full = d
+    out.tile_px = g.tile_px
+    return out
 
 
 def rounding_matters(d: ModelData) -> np.ndarray:

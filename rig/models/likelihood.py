@@ -64,9 +64,23 @@ def gamma_constant(d: ModelData) -> float:
     return cached
 
 
+def gamma_constant_by_stop(d: ModelData) -> tuple[np.ndarray, np.ndarray]:
+    """(stops, each stop's share of `gamma_constant`), kept with `d`: the constant of some of its stops is a sum."""
+    cached = d.__dict__.get("gamma_constant_by_stop")
+    if cached is None:
+        a = d.gamma_shape
+        terms = a * np.log(a) - gammaln(a) + (a - 1) * np.log(d.s2_m2)
+        sums = np.bincount(d.stop, weights=terms)
+        present = np.bincount(d.stop) > 0
+        cached = d.__dict__["gamma_constant_by_stop"] = (np.flatnonzero(present), sums[present])
+    return cached
+
+
 def fill_by_stop(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error)."""
-    stops, idx = np.unique(d.stop, return_inverse=True)
+    present = np.bincount(d.stop) > 0  # stops are small non-negative integers: index them by a table, not a sort
+    idx = (np.cumsum(present) - 1)[d.stop]
+    stops = np.flatnonzero(present)
     frames = d.n / np.maximum(d.fill, 1e-12)
     count = np.bincount(idx, minlength=len(stops)).astype(float)
     measured = np.bincount(idx, weights=d.fill, minlength=len(stops)) / count

@@ -60,14 +60,15 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray, *, diagonal: bool = False) -> 
 
 
 def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
-              hold: frozenset[str] = frozenset(), grouped: bool = True) -> ModelFit:
+              hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True) -> ModelFit:
     """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao), unless
     `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later).
     Parameters named in `hold` stay at their `start` values (a quick conditional fit).
 
     Large data are fitted on their grouped nodes (`rig.models.grouping`, a second-order expansion of the
     likelihood about each small tile), when every effect of the model is smooth within a tile and `grouped`
-    is true; the log-likelihood reported is then evaluated on every pixel at the optimum."""
+    is true; the log-likelihood reported is then evaluated on every pixel at the optimum (with `exact_loglik`
+    False, the nodes' value is reported: a held-out fold needs only the parameters)."""
     model.check(d)
     work = fit_data(model, d) if grouped else d
     values = {n: p.value for n, p in model.parameters()}
@@ -132,7 +133,7 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
                 res = r
     y0 = starts[0]
     best = unpack(res.x)
-    ll = model.loglik(best, d)
+    ll = model.loglik(best, d if exact_loglik else work)
     se, cov = _standard_errors(model, best, work, names) if errors else ({}, None)
     return ModelFit(model, best, se, ll, converged=bool(res.success) or res.fun < objective(y0), message=str(res.message),
                     covariance=cov, **summary)

@@ -62,6 +62,47 @@ def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None
     return [_raised(r) for r in results]
 
 
+#: the function the forked workers of `forked_map` call
+_MAP: Callable[[int], object] | None = None
+
+
+def forked_map(fn: Callable[[int], object], n: int, *, jobs: int = 1, done: Callable[[int], None] | None = None) -> list:
+    """[fn(0), ..., fn(n - 1)], computed in up to `jobs` forked worker processes, which inherit whatever `fn` reads
+    (results must pickle); in the calling process under the same conditions as `fit_models`. `done(i)` is called
+    as item i finishes."""
+    global _MAP
+    forkable = "fork" in multiprocessing.get_all_start_methods() and threading.current_thread() is threading.main_thread()
+    if jobs <= 1 or n <= 1 or not forkable:
+        out = []
+        for i in range(n):
+            out.append(fn(i))
+            if done is not None:
+                done(i)
+        return out
+    _MAP = fn
+    try:
+        results: list = [None] * n
+        pool = multiprocessing.get_context("fork").Pool(min(jobs, n), initializer=_quiet_signals)
+        try:
+            for i, r in pool.imap_unordered(_map_in_worker, range(n)):
+                results[i] = r
+                if done is not None:
+                    done(i)
+            pool.close()
+        except BaseException:
+            pool.terminate()
+            raise
+        finally:
+            pool.join()
+    finally:
+        _MAP = None
+    return results
+
+
+def _map_in_worker(i: int) -> tuple[int, object]:
+    return i, _MAP(i)  # type: ignore[misc]
+
+
 def _fit(m: Model, d: ModelData, start: dict[str, float] | None, hold: frozenset[str]) -> ModelFit | Exception:
     from .user_effects import EffectFileError
 
