@@ -15,7 +15,7 @@ import pytest
 from protocols import Runner, perpendicular, tilted
 from rig.devices import open_devices
 from rig.models import ModelData, parse_model
-from rig.models.grouping import GroupedData, group, tile_size
+from rig.models.grouping import GroupedData, group, tile_size, whole_stops
 from rig.models.optimise import _standard_errors, fit_data
 
 CAMERA = "fake:width=424,height=240,depth_unit_mm=0.1,seed=5,effects=noise_floor(sigma_px=0.02)+slant_range"
@@ -112,7 +112,7 @@ def test_every_node_array_has_a_value_per_node(sweep_data, coarse_unit_data):
 
 
 def test_stops_left_out_share_the_whole_datas_nodes_and_statistics(sweep_data):
-    """`ModelData.whole_stops` (the held-out score's parts): the nodes of the kept stops and the statistics carried
+    """`rig.models.grouping.whole_stops` (the held-out score's parts): the nodes of the kept stops and the statistics carried
     over from the whole data give the same fit as measuring and grouping the kept stops afresh (within 0.1 SE), and
     the same data-only constant and fill by stop."""
     from rig.models.likelihood import gamma_constant
@@ -120,7 +120,7 @@ def test_stops_left_out_share_the_whole_datas_nodes_and_statistics(sweep_data):
     m = parse_model("active+noise_floor+outliers")
     fit_data(m, sweep_data)  # the whole data's nodes, which whole_stops hands on
     keep = sweep_data.stop != sweep_data.stop[0]
-    shared, fresh = sweep_data.whole_stops(keep, statistics=False), sweep_data.select(keep)
+    shared, fresh = whole_stops(sweep_data, keep, statistics=False), sweep_data.select(keep)
     assert isinstance(fit_data(m, shared), GroupedData) and fit_data(m, shared).full is shared
     assert gamma_constant(shared) == pytest.approx(gamma_constant(fresh), rel=1e-12)
     assert np.array_equal(shared.fill_by_stop[0], fresh.fill_by_stop[0])

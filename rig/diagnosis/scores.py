@@ -29,6 +29,7 @@ import numpy as np
 from ..models import Model, ModelData, ModelFit
 from ..models.optimise import fit_data
 from ..models.data import stops_of
+from ..models.grouping import whole_stops
 from ..models.likelihood import gamma_constant_by_stop
 from ..models.parallel import forked_map
 from ..models.result import chi2_sf
@@ -132,7 +133,7 @@ def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
                  counter: ProgressCounter | None = None, jobs: int = 1) -> float:
     """Negative log-likelihood per degree of freedom on left-out stops (or image strips); `counter`, if given,
     is told of each refit (`rig.models.progress`). Left-out stops share the whole data's per-pixel statistics
-    and grouped nodes (`ModelData.whole_stops`); the parts are fitted in up to `jobs` worker processes."""
+    and grouped nodes (`rig.models.grouping.whole_stops`); the parts are fitted in up to `jobs` worker processes."""
     groups = held_out_folds(d)
     by_stop = groups is d.stop
     start = full.values if full is not None else None
@@ -144,7 +145,7 @@ def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
     def one(i: int) -> tuple[float, float]:
         test = groups == parts[i]
         if by_stop:
-            train_d, test_d = d.whole_stops(~test, statistics=False), d.whole_stops(test)
+            train_d, test_d = whole_stops(d, ~test, statistics=False), whole_stops(d, test)
         else:
             train_d, test_d = d.select(~test), d.select(test)
         f = model.fit(train_d, start=start, errors=False, exact_loglik=False)

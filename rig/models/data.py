@@ -141,31 +141,6 @@ class ModelData:
         """The rows where `mask` is true (or the rows `mask` indexes); their shape statistics are their own."""
         return self._taken(mask, derived=False)
 
-    def whole_stops(self, mask: np.ndarray, *, statistics: bool = True) -> "ModelData":
-        """The rows where `mask` is true, which must be whole stops, with the grouped nodes of those stops
-        (`rig.models.grouping.nodes_of_stops`: tiles never span stops) and the covariates computed so far. With
-        `statistics`, also the per-pixel statistics computed so far (they are computed within a stop, so a stop's
-        values do not depend on the other stops; the kurtosis by range window is the whole data's, shared only
-        where a window holds two stops' pixels); without, only what a fit on the nodes reads of the pixels (the
-        data-only constant and the fill by stop, from the whole data's per-stop sums), copying less. Held-out
-        scores use it, fitting with some stops left out without measuring and grouping the rest again."""
-        from .grouping import nodes_of_stops
-        from .likelihood import gamma_constant_by_stop
-
-        out = self._taken(mask, derived=statistics)
-        out.__dict__["kurtosis_by_range"] = self.kurtosis_by_range
-        if not statistics:
-            stops, constants = gamma_constant_by_stop(self)
-            kept = np.isin(stops, stops_of(out))
-            out.__dict__["gamma_constant"] = float(constants[kept].sum())
-            idx, measured, se = self.fill_by_stop
-            out.__dict__["fill_by_stop"] = ((np.cumsum(kept) - 1)[idx[mask]], measured[kept], se[kept])
-        for key in ("grouped", "grouped_by_offset"):
-            g = self.__dict__.get(key)
-            if g is not None:
-                out.__dict__[key] = out if g is self else nodes_of_stops(g, out)
-        return out
-
     def in_range(self, z_min_m: float, z_max_m: float) -> "ModelData":
         return self.select((self.z_m >= z_min_m) & (self.z_m <= z_max_m))
 

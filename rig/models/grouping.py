@@ -140,6 +140,31 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
     return g
 
 
+def whole_stops(d: ModelData, mask: np.ndarray, *, statistics: bool = True) -> ModelData:
+    """The rows of `d` where `mask` is true, which must be whole stops, with the grouped nodes of those stops
+    (`rig.models.grouping.nodes_of_stops`: tiles never span stops) and the covariates computed so far. With
+    `statistics`, also the per-pixel statistics computed so far (they are computed within a stop, so a stop's
+    values do not depend on the other stops; the kurtosis by range window is the whole data's, shared only
+    where a window holds two stops' pixels); without, only what a fit on the nodes reads of the pixels (the
+    data-only constant and the fill by stop, from the whole data's per-stop sums), copying less. Held-out
+    scores use it, fitting with some stops left out without measuring and grouping the rest again."""
+    from .likelihood import gamma_constant_by_stop
+
+    out = d._taken(mask, derived=statistics)
+    out.__dict__["kurtosis_by_range"] = d.kurtosis_by_range
+    if not statistics:
+        stops, constants = gamma_constant_by_stop(d)
+        kept = np.isin(stops, stops_of(out))
+        out.__dict__["gamma_constant"] = float(constants[kept].sum())
+        idx, measured, se = d.fill_by_stop
+        out.__dict__["fill_by_stop"] = ((np.cumsum(kept) - 1)[idx[mask]], measured[kept], se[kept])
+    for key in ("grouped", "grouped_by_offset"):
+        g = d.__dict__.get(key)
+        if g is not None:
+            out.__dict__[key] = out if g is d else nodes_of_stops(g, out)
+    return out
+
+
 def nodes_of_stops(g: GroupedData, d: ModelData) -> GroupedData:
     """The nodes of `g` that stand for the stops of `d` (whole stops of the data `g` was grouped from, with their
     per-pixel statistics): what grouping `d` itself would give with g's tile size, since no tile spans two stops
