@@ -157,9 +157,12 @@ def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
         gc.collect()
         return score
 
-    def done(i: int) -> None:
+    finished = [0]
+
+    def done(i: int) -> None:  # parts finish in any order when refitted in parallel: count them
+        finished[0] += 1
         if counter is not None:
-            counter.step(f"held-out score of {model.name}: part {i + 1} of {len(parts)} left out")
+            counter.step(f"held-out score of {model.name}: {finished[0]} of {len(parts)} refits with a part left out")
 
     scores = forked_map(one, len(parts), jobs=jobs, done=done)
     return sum(t for t, _ in scores) / sum(n for _, n in scores)
