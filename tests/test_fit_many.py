@@ -46,3 +46,15 @@ def test_json_is_one_schema_document_a_line(shelf, capsys):
 def test_a_file_is_not_a_folder(shelf, capsys):
     assert main(["fit", "--many", str(shelf / "camera-1.h5")]) == 2
     assert "--many takes a folder" in capsys.readouterr().err
+
+
+def test_a_reader_that_stops_early_ends_it_quietly(shelf):
+    """`rig fit --many DIR --json | head -1`: the pipe closes after the first line; rig stops without a traceback."""
+    import subprocess
+    import sys
+
+    rig = str(Path(sys.executable).parent / "rig")
+    r = subprocess.run(f"'{rig}' fit --many '{shelf}' --json --jobs 1 | head -c 10", shell=True, capture_output=True,
+                       text=True, executable="/bin/bash")
+    assert r.stdout.startswith("{"), r.stdout
+    assert "Traceback" not in r.stderr and "BrokenPipe" not in r.stderr, r.stderr
