@@ -91,3 +91,33 @@ def test_a_coarse_unit_the_approximate_conditioning_missed_ends_within_noise(tmp
     noise: sigma by brightness'; conditioned exactly (rig/models/rounding_table.py) it is within noise."""
     t = run_trial("coarse_depth_unit", 1004, tmp_path)
     assert t.correct and t.within_noise, (t.path, t.error_after_pct, t.noise_pct, t.worst)
+
+
+def test_an_effect_that_cannot_be_fitted_is_named_with_its_reason(tmp_path):
+    """A candidate whose fit fails (here: an effect that raises ValueError past its start values) is not ranked,
+    and the report says which effect and why instead of leaving it out silently."""
+    from rig.diagnosis import diagnose
+    from rig.diagnosis.text import render_text
+    from rig.models import Catalogue, ModelData
+    from rig.models.effects import Effect
+    from rig.models.parameters import Param
+    from rig.models.prediction import EffectStage
+
+    class Fragile(Effect):
+        name = "fragile"
+        stage = EffectStage.DISPARITY
+        params = (Param("gain", 1.0, 0.5, 2.0, "1", "a factor on the variance"),)
+
+        def apply(self, pred, p, d):
+            if p["fragile.gain"] != 1.0:
+                raise ValueError("fragile: no model for a gain other than 1")
+            pred.var_m2 = pred.var_m2 * p["fragile.gain"]
+
+    out = tmp_path / "x.h5"
+    assert main(["simulate", "--seed", "5", "--effect", "slant_range", str(out)]) == 0
+    d = ModelData.from_recording(out)
+    diag = diagnose(d, source=str(out), catalogue=Catalogue().with_effects([Fragile()], "this test"))
+    assert ("fragile", "fragile: no model for a gain other than 1") in diag.steps[0].not_fitted
+    assert "fragile" not in [c.effect.name for c in diag.candidates]
+    assert "fragile          could not be fitted on top of active: fragile: no model for a gain other than 1" \
+        in render_text(diag)

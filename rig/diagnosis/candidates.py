@@ -41,9 +41,11 @@ def applicable_candidates(model: Model, d: ModelData, catalogue: Catalogue | Non
 
 
 def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catalogue | None = None, *,
-                    counter: ProgressCounter | None = None, jobs: int = 1) -> list[Candidate]:
+                    counter: ProgressCounter | None = None, jobs: int = 1,
+                    not_fitted: list[tuple[str, str]] | None = None) -> list[Candidate]:
     """Every applicable effect of the catalogue not yet in `model`, fitted with it (in `jobs` processes), best
-    (lowest BIC) first."""
+    (lowest BIC) first. An effect whose fit fails is left out of the ranking, and (effect name, why) is added
+    to `not_fitted` if given, for the report to say."""
     effects = applicable_candidates(model, d, catalogue)
     models = [model + e for e in effects]
     if counter is not None and models:
@@ -59,8 +61,10 @@ def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catal
 
     out = []
     for e, f in zip(effects, fit_models(models, d, base.values, jobs=jobs, done=done)):
-        if isinstance(f, ValueError):
-            continue  # this effect cannot be fitted to these data
+        if isinstance(f, ValueError):  # this effect cannot be fitted to these data
+            if not_fitted is not None:
+                not_fitted.append((e.name, str(f) or type(f).__name__))
+            continue
         stat, df, p = likelihood_ratio(base, f)
         out.append(Candidate(e, f, f.bic - base.bic, stat, df, p))
     out.sort(key=lambda c: c.dbic)

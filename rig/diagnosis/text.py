@@ -39,6 +39,9 @@ def render_text(diag: Diagnosis) -> str:
     for c in diag.candidates:
         mark = "significant" if c.significant else ""
         lines.append(f"  {c.effect.name:<16} dBIC {c.dbic:12.1f}   LRT {c.lrt:12.1f} df {c.df}  p {c.p_value:.1e}  {mark}")
+    for st in diag.steps:
+        for name, why in st.not_fitted:
+            lines.append(f"  {name:<16} could not be fitted on top of {st.name}: {why}")
     lines += ["", "The path (each step adds the most likely missing effect while something is beyond noise):"]
     for st in diag.steps:
         change = "start" if st.added is None else f"+ {st.added.effect.name} (dBIC {st.added.dbic:.1f})"

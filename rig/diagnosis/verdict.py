@@ -47,6 +47,7 @@ class Step:
     added: Candidate | None = None
     equivalent: list[Candidate] = field(default_factory=list)
     candidates: list[Candidate] = field(default_factory=list)  # effects tried on top of this model
+    not_fitted: list[tuple[str, str]] = field(default_factory=list)  # effects whose fit failed, and why
 
     @property
     def name(self) -> str:
@@ -201,12 +202,14 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
     counter.step("fitting power_law")
     pl = fit_power_law(d)  # the paper's fit, for reference: closed form
     steps = [Step(fit, headline(fit, d))]
-    steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter, jobs=jobs)  # shown even when nothing is missing
+    steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter, jobs=jobs,
+                                          not_fitted=steps[0].not_fitted)  # shown even when nothing is missing
     while not steps[-1].headline.within_noise and len(steps) <= max_steps:
         current = steps[-1]
         if len(steps) > 1:
             counter.expect(1 + len(applicable_candidates(current.fit.model, d, catalogue)))
-            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue, counter=counter, jobs=jobs)
+            current.candidates = rank_candidates(current.fit.model, current.fit, d, catalogue, counter=counter, jobs=jobs,
+                                                 not_fitted=current.not_fitted)
         best, equivalent = choose(current.candidates)
         if best is None:
             break
