@@ -19,7 +19,7 @@ from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN
 from rig.simulation.validation import run_trial
 
 SEED = 1000
-#: the two slowest open scenarios (2-8 min each on a 2-core machine) are in the docs' table only
+#: light_falloff (beyond noise in 9 trials of 10) and noisy_confidence (2.5-4 min a trial) are in the docs' table only
 SUITE = [s for s in ALL_SCENARIOS if s not in ("light_falloff", "noisy_confidence")]
 
 
