@@ -22,44 +22,22 @@ from .data import ModelData
 from .optimise import fit_data
 from .result import ModelFit
 
-#: what the forked workers read (set before the pool starts, so each inherits it)
-_JOB: tuple[list[Model], ModelData, dict[str, float] | None, frozenset[str]] | None = None
-
-
 def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None = None, *, jobs: int = 1,
                hold: frozenset[str] = frozenset(), done: Callable[[int], None] | None = None) -> list[ModelFit | ValueError]:
     """Each model fitted (without standard errors) from `start`, the parameters in `hold` held there, in order; a
     model that cannot be fitted gives its ValueError (an `EffectFileError` is raised). `done(i)` is called as
     model i finishes. Effects that keep state (an empirical shape's knots) must have it before the call."""
-    global _JOB
-    forkable = "fork" in multiprocessing.get_all_start_methods() and threading.current_thread() is threading.main_thread()
-    if jobs <= 1 or len(models) <= 1 or not forkable:
-        out = []
-        for i, m in enumerate(models):
-            out.append(_fit(m, d, start, hold))
-            if done is not None:
-                done(i)
-        return [_raised(r) for r in out]
-    for m in models:
-        fit_data(m, d)  # grouped nodes made here, once, not in every worker
-    _JOB = (models, d, start, hold)
-    try:
-        results: list = [None] * len(models)
-        pool = multiprocessing.get_context("fork").Pool(min(jobs, len(models)), initializer=_quiet_signals)
-        try:
-            for i, r in pool.imap_unordered(_fit_in_worker, range(len(models))):
-                results[i] = r if isinstance(r, Exception) else replace(r, model=models[i])
-                if done is not None:
-                    done(i)
-            pool.close()
-        except BaseException:
-            pool.terminate()
-            raise
-        finally:
-            pool.join()
-    finally:
-        _JOB = None
-    return [_raised(r) for r in results]
+    if jobs > 1 and len(models) > 1:
+        for m in models:
+            fit_data(m, d)  # grouped nodes made here, once, not in every worker
+
+    def one(i: int) -> object:
+        # the fit goes back without its effects (the parent puts its own model back: a user's effects may not pickle)
+        r = _fit(models[i], d, start, hold)
+        return r if isinstance(r, Exception) else replace(r, model=Model(models[i].base))
+
+    results = forked_map(one, len(models), jobs=jobs, done=done)
+    return [_raised(r if isinstance(r, Exception) else replace(r, model=models[i])) for i, r in enumerate(results)]
 
 
 #: the function the forked workers of `forked_map` call
@@ -68,8 +46,8 @@ _MAP: Callable[[int], object] | None = None
 
 def forked_map(fn: Callable[[int], object], n: int, *, jobs: int = 1, done: Callable[[int], None] | None = None) -> list:
     """[fn(0), ..., fn(n - 1)], computed in up to `jobs` forked worker processes, which inherit whatever `fn` reads
-    (results must pickle); in the calling process under the same conditions as `fit_models`. `done(i)` is called
-    as item i finishes."""
+    (results must pickle); in the calling process when `jobs` or `n` is 1, where fork is not available, or off the
+    main thread (module docstring). `done(i)` is called as item i finishes."""
     global _MAP
     forkable = "fork" in multiprocessing.get_all_start_methods() and threading.current_thread() is threading.main_thread()
     if jobs <= 1 or n <= 1 or not forkable:
@@ -119,14 +97,6 @@ def _quiet_signals() -> None:
     (the command line turns SIGTERM into an interrupt, which a worker must not inherit)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
-def _fit_in_worker(i: int) -> tuple[int, object]:
-    """In a worker: fit model i; send back the fit without its effects (the parent puts its own model back: a
-    user's effects may not pickle), or the error."""
-    models, d, start, hold = _JOB  # type: ignore[misc]
-    r = _fit(models[i], d, start, hold)
-    return i, (r if isinstance(r, Exception) else replace(r, model=Model(models[i].base)))
 
 
 def _raised(r: object) -> ModelFit | ValueError:
