@@ -35,6 +35,7 @@ import numpy as np
 
 from .camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, Intrinsics
 from .errors import CameraError
+from .options import POSITIVE, Option, OptionTable, between
 from .registry import DeviceSpec
 
 INSTALL = "pip install 'depthai>=3,<4'"
@@ -42,6 +43,21 @@ ISO_RANGE = (100, 1600)
 EXPOSURE_RANGE_US = (20, 33000)
 #: frames to wait after a settings change for the frames to report them
 SETTLE_FRAMES = 30
+#: the device-string options (docs/hardware.md); `oak://ID` is id=
+OAK_OPTIONS = OptionTable("oak", "camera", (
+    Option("id", str, None, None, "", "the device id, IP address or USB path of the OAK to open",
+           example="14442C108144F1D000", absent="the first found"),
+    Option("width", int, 640, POSITIVE, "px", "mono resolution fed to stereo, width"),
+    Option("height", int, 400, POSITIVE, "px", "mono resolution fed to stereo, height"),
+    Option("fps", float, 30.0, POSITIVE, "fps", "frame rate"),
+    Option("preset", str, "DEFAULT", None, "", "StereoDepth preset (DEFAULT, ACCURACY, DENSITY, ROBOTICS, ...)"),
+    Option("confidence", int, 200, between(0, 255), "", "StereoDepth confidence threshold"),
+    Option("subpixel", bool, True, None, "", "subpixel disparity"),
+    Option("lr_check", bool, True, None, "", "left-right consistency check"),
+    Option("projector", float, 0.5, between(0, 1), "", "IR dot projector intensity when the projector is on"),
+    Option("search", float, 3.0, POSITIVE, "s", "how long to look for devices"),
+    Option("timeout", float, 5.0, POSITIVE, "s", "how long to wait for a frame"),
+), path="device id (as id=)", error=CameraError)
 
 
 def sdk(search_s: float = 3.0) -> Any:
@@ -199,19 +215,10 @@ class OakCamera(DepthCamera):
 
     @classmethod
     def from_spec(cls, spec: DeviceSpec) -> "OakCamera":
-        known = {"id", "width", "height", "fps", "preset", "confidence", "subpixel", "lr_check", "projector", "search", "timeout"}
-        unknown = set(spec.options) - known
-        if unknown:
-            raise CameraError(f"oak: unknown option(s) {sorted(unknown)} in {spec.text!r}; it takes {sorted(known)}")
-        o = spec.options
-
-        def flag(key: str, default: bool) -> bool:
-            return o.get(key, "1" if default else "0").lower() not in ("0", "off", "false", "no")
-
-        return cls(device_id=o.get("id") or spec.path or None, width=spec.int("width", 640), height=spec.int("height", 400),
-                   fps=spec.float("fps", 30.0), preset=o.get("preset", "DEFAULT"), confidence=spec.int("confidence", 200),
-                   subpixel=flag("subpixel", True), lr_check=flag("lr_check", True), projector=spec.float("projector", 0.5),
-                   search_s=spec.float("search", 3.0), timeout_s=spec.float("timeout", 5.0))
+        o = spec.take(OAK_OPTIONS)
+        return cls(device_id=o["id"] or spec.path or None, width=o["width"], height=o["height"], fps=o["fps"],
+                   preset=o["preset"], confidence=o["confidence"], subpixel=o["subpixel"], lr_check=o["lr_check"],
+                   projector=o["projector"], search_s=o["search"], timeout_s=o["timeout"])
 
     # -- lifecycle -------------------------------------------------------------------------
     def find(self) -> Any:

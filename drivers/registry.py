@@ -13,6 +13,12 @@ and `rig.stages` (`[project.entry-points."rig.cameras"] mycam = "mypkg.camera:op
 A factory is called as `factory(spec, context)`: `spec` is the parsed `DeviceSpec`,
 `context` a dict shared by the camera and stage built together (the simulated devices keep
 their common world in it).
+
+Each kind declares its options once, as an `OptionTable` (drivers.options), and reads them with
+`spec.take(TABLE)`, which refuses an unknown key (suggesting the nearest known one) or a bad value
+in one line. `option_table(what, kind)` finds a kind's table (for `rig devices --options KIND`): the
+built-in ones are named in CAMERA_OPTIONS and STAGE_OPTIONS, a plugin's factory may carry its own
+as the attribute `options`.
 """
 
 from __future__ import annotations
@@ -21,9 +27,10 @@ import importlib
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Callable
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import unquote_plus, urlsplit
 
 from .errors import DeviceError
+from .options import OptionTable
 
 #: built-in camera kinds: kind -> "module:factory"
 CAMERA_KINDS = {
@@ -39,6 +46,18 @@ STAGE_KINDS = {
     "zaber": "drivers.serial.zaber:open_zaber",
 }
 ENTRY_POINT_GROUPS = {"camera": "rig.cameras", "stage": "rig.stages"}
+#: the option table of each built-in kind: kind -> "module:TABLE"
+CAMERA_OPTIONS = {
+    "fake": "fakes.camera:FAKE_CAMERA_OPTIONS",
+    "realsense": "drivers.realsense.camera:REALSENSE_OPTIONS",
+    "oak": "drivers.oak:OAK_OPTIONS",
+}
+STAGE_OPTIONS = {
+    "fake": "fakes.devices:FAKE_STAGE_OPTIONS",
+    "none": "drivers.stage:NO_STAGE_OPTIONS",
+    "grbl": "drivers.serial.rail:GRBL_OPTIONS",
+    "zaber": "drivers.serial.rail:ZABER_OPTIONS",
+}
 
 
 @dataclass
@@ -61,14 +80,28 @@ class DeviceSpec:
         if rest.startswith("//"):
             parts = urlsplit(text)
             path = (parts.netloc + parts.path) if parts.netloc else parts.path
-            return cls(kind, path, dict(parse_qsl(parts.query)), text)
-        options: dict[str, str] = {}
+            options: dict[str, str] = {}
+            for item in filter(None, parts.query.split("&")):
+                if "=" not in item:
+                    raise DeviceError(f"device string {text!r}: option {unquote_plus(item)!r} is not KEY=VALUE; "
+                                      f"write e.g. '{kind}:///dev/ttyUSB0?offset_m=0.3'")
+                key, value = item.split("=", 1)
+                options[unquote_plus(key).strip()] = unquote_plus(value)
+            return cls(kind, path, options, text)
+        options = {}
         for item in filter(None, (p.strip() for p in _split_options(rest))):
             if "=" not in item:
                 raise DeviceError(f"device string {text!r}: option {item!r} is not KEY=VALUE; write e.g. 'fake:width=424'")
             key, value = item.split("=", 1)
             options[key.strip()] = value.strip()
         return cls(kind, "", options, text)
+
+    def take(self, table: OptionTable) -> dict[str, Any]:
+        """Every option of `table`: those this string gives, parsed and checked, and the defaults of the others.
+
+        Refuses in one line (the table's error class) a key the table lacks, with the nearest known key and the
+        list of them, a value of the wrong type or out of range, and a path for a kind that takes none."""
+        return table.take(self.options, self.text, self.path)
 
     def float(self, key: str, default: float) -> float:
         return self._typed(key, default, float)
@@ -125,6 +158,18 @@ def factory(what: str, kind: str, text: str = "") -> Factory:
     for part in attr.split("."):
         obj = getattr(obj, part)
     return obj
+
+
+def option_table(what: str, kind: str) -> OptionTable | None:
+    """The option table of a kind of `what` ("camera" or "stage"); None for a plugin's kind that declares none."""
+    make = factory(what, kind)
+    if isinstance(getattr(make, "options", None), OptionTable):
+        return make.options  # type: ignore[attr-defined]
+    where = (CAMERA_OPTIONS if what == "camera" else STAGE_OPTIONS).get(kind)
+    if where is None:
+        return None
+    module_name, _, attr = where.partition(":")
+    return getattr(importlib.import_module(module_name), attr)
 
 
 def build(what: str, text: str, context: dict[str, Any] | None = None) -> Any:

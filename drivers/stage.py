@@ -11,6 +11,8 @@ import abc
 from typing import Any
 
 from .errors import StageError
+from .options import OptionTable
+from .registry import DeviceSpec
 
 
 class Stage(abc.ABC):
@@ -100,6 +102,11 @@ class NoStage(Stage):
         return self._position_m
 
 
-def no_stage(spec: Any, context: dict[str, Any]) -> NoStage:
+#: `none:` takes no options
+NO_STAGE_OPTIONS = OptionTable("none", "stage", (), error=StageError)
+
+
+def no_stage(spec: DeviceSpec, context: dict[str, Any]) -> NoStage:
     """Factory for `none:`: no stage; the distance is the one the experiment states (context "distance_m")."""
+    spec.take(NO_STAGE_OPTIONS)
     return NoStage(position_m=float(context.get("distance_m", float("nan"))))

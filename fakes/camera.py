@@ -14,6 +14,7 @@ import numpy as np
 
 from drivers.camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, Intrinsics
 from drivers.errors import CameraError
+from drivers.options import AT_LEAST_0, Check, Option, OptionTable, below, between, one_of
 
 from .effects import Effect, parse_effects
 from .render import depth_from_disparity, depth_from_noise, ir_from_uniform
@@ -25,6 +26,25 @@ GAIN_RANGE = (16.0, 248.0)
 #: digital numbers per photo-electron of the IR image at gain 16 (x1); the image is 10-bit (Y16)
 IR_DN_PER_E = 0.04
 IR_MAX_DN = 1023
+
+_NUMBER = Check(lambda v: 0 < v < 1e4, "above 0 and below 10000")
+#: the options of `fake:` cameras (FakeCamera.from_options)
+FAKE_CAMERA_OPTIONS = OptionTable("fake", "camera", (
+    Option("width", int, NATIVE_WIDTH, between(4, 4096), "px", "image width (a D455 is 1280x720 at most)", example=424),
+    Option("height", int, None, between(2, 4096), "px", "image height", example=240, absent="width * 480 / 848"),
+    Option("depth_unit_mm", float, 1.0, _NUMBER, "mm", "depth unit: the size of one depth count"),
+    Option("baseline_mm", float, 50.0, _NUMBER, "mm", "stereo baseline"),
+    Option("fps", float, 30.0, _NUMBER, "fps", "frame rate"),
+    Option("seed", int, 0, AT_LEAST_0, "", "random seed"),
+    Option("effects", str, "", None, "", "extra physical effects, e.g. noise_floor(sigma_px=0.03)+slant_range",
+           example="noise_floor"),
+    Option("fail_at_frame", int, None, AT_LEAST_0, "", "raise a CameraError at this frame (a simulated unplug)",
+           example=10, absent="never"),
+    Option("light", str, "auto", one_of("day", "night", "auto"), "",
+           "day: room light on the wall; night: the projector only; auto: night if first configured with it on"),
+    Option("drop", float, 0.0, below(0, 1), "", "probability that a frame is lost", example=0.01),
+    Option("duplicate", float, 0.0, below(0, 1), "", "probability that a frame is handed over twice", example=0.01),
+), error=CameraError)
 
 
 class FakeCamera(DepthCamera):
@@ -106,43 +126,29 @@ class FakeCamera(DepthCamera):
         self._room_lit: bool | None = {"day": True, "night": False, "auto": None}[light]
 
     @classmethod
-    def from_options(cls, world: FakeWorld, options: dict[str, str]) -> "FakeCamera":
-        """Build from device-string options: width, height, depth_unit_mm, seed, fps, effects, fail_at_frame."""
-        known = {"width", "height", "depth_unit_mm", "seed", "fps", "effects", "fail_at_frame", "baseline_mm", "light",
-                 "drop", "duplicate"}
-        unknown = set(options) - known
-        if unknown:
-            raise CameraError(f"fake camera: unknown option(s) {sorted(unknown)}; it takes {sorted(known)}")
+    def from_options(cls, world: FakeWorld, options: dict[str, str], text: str = "", path: str = "") -> "FakeCamera":
+        """Build from device-string options (`FAKE_CAMERA_OPTIONS`); `text` and `path` are the device string's."""
+        o = FAKE_CAMERA_OPTIONS.take(options, text, path)
+        width = o["width"]
         try:
-            width = int(options.get("width", NATIVE_WIDTH))
-            height = int(options.get("height", round(width * 480 / NATIVE_WIDTH)))
-            if not (4 <= width <= 4096 and 2 <= height <= 4096):
-                raise CameraError(f"fake camera: {width}x{height} px is outside 4x2 to 4096x4096 (a D455 is 1280x720 at most); "
-                                  "e.g. fake:width=424")
-            for key in ("depth_unit_mm", "baseline_mm", "fps"):
-                if key in options and not 0 < float(options[key]) < 1e4:
-                    raise CameraError(f"fake camera: {key}={options[key]} must be a positive number; e.g. fake:{key}=1")
-            for key in ("drop", "duplicate"):
-                if key in options and not 0 <= float(options[key]) < 1:
-                    raise CameraError(f"fake camera: {key}={options[key]} is a probability per frame, 0 to below 1; e.g. fake:{key}=0.01")
-            return cls(
-                world,
-                width=width,
-                height=height,
-                depth_scale_m=float(options.get("depth_unit_mm", 1.0)) / 1000.0,
-                baseline_m=float(options.get("baseline_mm", 50.0)) / 1000.0,
-                seed=int(options.get("seed", 0)),
-                fps=float(options.get("fps", 30.0)),
-                effects=parse_effects(options.get("effects", "")),
-                fail_at_frame=int(options["fail_at_frame"]) if "fail_at_frame" in options else None,
-                light=options.get("light", "auto"),
-                drop=float(options.get("drop", 0.0)),
-                duplicate=float(options.get("duplicate", 0.0)),
-            )
-        except KeyError:
-            raise CameraError(f"fake camera: light={options.get('light')!r}; use light=day, night or auto") from None
+            effects = parse_effects(o["effects"])
         except ValueError as e:
-            raise CameraError(f"fake camera: bad option ({e}); e.g. fake:width=424,depth_unit_mm=0.1") from None
+            raise CameraError(f"fake camera: bad effects={o['effects']!r} ({e}); "
+                              "e.g. fake:effects=noise_floor(sigma_px=0.03)+slant_range") from None
+        return cls(
+            world,
+            width=width,
+            height=o["height"] if o["height"] is not None else round(width * 480 / NATIVE_WIDTH),
+            depth_scale_m=o["depth_unit_mm"] / 1000.0,
+            baseline_m=o["baseline_mm"] / 1000.0,
+            seed=o["seed"],
+            fps=o["fps"],
+            effects=effects,
+            fail_at_frame=o["fail_at_frame"],
+            light=o["light"],
+            drop=o["drop"],
+            duplicate=o["duplicate"],
+        )
 
     # -- lifecycle -------------------------------------------------------------------------
     def open(self) -> None:

@@ -13,6 +13,7 @@ from typing import Any
 
 from drivers.camera import DepthCamera
 from drivers.errors import StageError
+from drivers.options import AT_LEAST_0, POSITIVE, Option, OptionTable
 from drivers.registry import DeviceSpec
 from drivers.stage import Stage
 
@@ -29,19 +30,27 @@ def shared_world(context: dict[str, Any]) -> FakeWorld:
     return context["world"]
 
 
+#: the options of the `fake:` stage
+FAKE_STAGE_OPTIONS = OptionTable("fake", "stage", (
+    Option("min_m", float, 0.3, AT_LEAST_0, "m", "the nearest camera-to-wall distance of its travel"),
+    Option("max_m", float, 3.5, POSITIVE, "m", "the farthest camera-to-wall distance of its travel"),
+    Option("speed", float, 0.1, POSITIVE, "m/s", "carriage speed"),
+    Option("settle", float, 0.5, AT_LEAST_0, "s", "wait after a move"),
+), error=StageError)
+
+
 def fake_camera(spec: DeviceSpec, context: dict[str, Any]) -> DepthCamera:
-    """Factory for `fake:...` cameras (options: see `FakeCamera.from_options`)."""
-    return FakeCamera.from_options(shared_world(context), spec.options)
+    """Factory for `fake:...` cameras (options: `fakes.camera.FAKE_CAMERA_OPTIONS`)."""
+    return FakeCamera.from_options(shared_world(context), spec.options, spec.text, spec.path)
 
 
 def fake_stage(spec: DeviceSpec, context: dict[str, Any]) -> Stage:
-    """Factory for the `fake:` stage (options speed in m/s, settle in s, and its travel: min_m, max_m, the
-    nearest and farthest camera-to-wall distances, default 0.3 and 3.5)."""
-    lo, hi = spec.float("min_m", 0.3), spec.float("max_m", 3.5)
-    if not 0.0 <= lo < hi:
+    """Factory for the `fake:` stage (options: `FAKE_STAGE_OPTIONS`)."""
+    o = spec.take(FAKE_STAGE_OPTIONS)
+    lo, hi = o["min_m"], o["max_m"]
+    if not lo < hi:
         raise StageError(f"device {spec.text!r}: travel min_m={lo:g} to max_m={hi:g} m is empty; give 0 <= min_m < max_m")
-    return FakeStage(shared_world(context), limits_m=(lo, hi), speed_m_s=spec.float("speed", 0.1),
-                     settle_s=spec.float("settle", 0.5))
+    return FakeStage(shared_world(context), limits_m=(lo, hi), speed_m_s=o["speed"], settle_s=o["settle"])
 
 
 class FollowingStage(Stage):
@@ -76,3 +85,9 @@ class FollowingStage(Stage):
 
     def describe(self) -> dict[str, Any]:
         return self.inner.describe()
+
+    def setup_problems(self) -> list[str]:
+        return self.inner.setup_problems()
+
+    def travel_note(self) -> str:
+        return self.inner.travel_note()

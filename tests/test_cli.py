@@ -50,7 +50,7 @@ def test_experiment_file_with_overrides(tmp_path, capsys):
 
 @pytest.mark.parametrize("args,message", [
     (["run", "--protocol", "perpendicular", "--camera", "nosuch:", "-o", "{tmp}/x.h5"], "unknown camera kind 'nosuch'"),
-    (["run", "--protocol", "perpendicular", "--camera", "fake:widht=3", "-o", "{tmp}/x.h5"], "unknown option(s) ['widht']"),
+    (["run", "--protocol", "perpendicular", "--camera", "fake:widht=3", "-o", "{tmp}/x.h5"], "unknown option 'widht' in 'fake:widht=3'; did you mean width?"),
     (["run", "--protocol", "perpendicular"], "no output file; pass -o FILE.h5"),
     (["run", "--protocol", "perpendicular", "--frames", "1", "-o", "{tmp}/x.h5"], "at least 2 frames"),
     (["run", "{tmp}/missing.toml"], "does not exist; see examples/*.toml"),

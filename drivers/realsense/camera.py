@@ -35,11 +35,31 @@ import numpy as np
 
 from ..camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata
 from ..errors import CameraError
+from ..options import AT_LEAST_0, POSITIVE, Option, OptionTable
 from ..registry import DeviceSpec
 from .frame_buffer import QUEUE_FRAMES, FrameBuffer, Item
 from .identity import read_info
 from .metadata import projector_state
 from .sdk import device_info, one_line, sdk
+
+#: the device-string options (docs/hardware.md); `realsense:///path/run.db3` is file=
+REALSENSE_OPTIONS = OptionTable("realsense", "camera", (
+    Option("serial", str, None, None, "", "open the camera with this serial number", example="123456789012",
+           absent="the first found"),
+    Option("file", str, None, None, "", "play this recording back (.db3; .bag from SDK <= 2.58)", example="run.db3",
+           absent="a live camera"),
+    Option("record", str, None, None, "", "also record everything streamed to this file, with the SDK's recorder",
+           example="run.db3", absent="none"),
+    Option("width", int, 848, POSITIVE, "px", "depth mode width"),
+    Option("height", int, 480, POSITIVE, "px", "depth mode height"),
+    Option("fps", int, 30, POSITIVE, "fps", "depth mode frame rate"),
+    Option("ir", bool, True, None, "", "stream the left IR image (0: only when a capture asks)"),
+    Option("laser_power", float, None, AT_LEAST_0, "mW", "projector power applied when the projector is on",
+           example=150, absent="leave the camera's"),
+    Option("preset", str, None, None, "", "a visual preset, by name or number, applied at open",
+           example="High Accuracy", absent="leave the camera's"),
+    Option("timeout", float, 5.0, POSITIVE, "s", "how long to wait for a frame"),
+), path="recording to play back (as file=)", error=CameraError)
 
 #: timestamp domains that share the host clock, so frames older than a request can be told apart
 HOST_CLOCK_DOMAINS = ("system_time", "global_time")
@@ -90,22 +110,18 @@ class RealSenseCamera(DepthCamera):
 
     @classmethod
     def from_spec(cls, spec: DeviceSpec) -> "RealSenseCamera":
-        known = {"serial", "file", "record", "width", "height", "fps", "ir", "laser_power", "preset", "timeout"}
-        unknown = set(spec.options) - known
-        if unknown:
-            raise CameraError(f"realsense: unknown option(s) {sorted(unknown)} in {spec.text!r}; it takes {sorted(known)}")
-        o = spec.options
+        o = spec.take(REALSENSE_OPTIONS)
         return cls(
-            serial=o.get("serial") or None,
-            file=o.get("file") or spec.path or None,
-            record=o.get("record") or None,
-            width=spec.int("width", 848),
-            height=spec.int("height", 480),
-            fps=spec.int("fps", 30),
-            ir=o.get("ir", "1").lower() not in ("0", "off", "false", "no"),
-            laser_power=spec.float("laser_power", float("nan")) if "laser_power" in o else None,
-            preset=o.get("preset") or None,
-            timeout_s=spec.float("timeout", 5.0),
+            serial=o["serial"],
+            file=o["file"] or spec.path or None,
+            record=o["record"],
+            width=o["width"],
+            height=o["height"],
+            fps=o["fps"],
+            ir=o["ir"],
+            laser_power=o["laser_power"],
+            preset=o["preset"],
+            timeout_s=o["timeout"],
         )
 
     # -- lifecycle -------------------------------------------------------------------------

@@ -20,7 +20,7 @@ from ..stage import Stage
 from .grbl_codes import GRBL_ALARMS, GRBL_ERRORS
 from .grbl_machine import REQUIRED, move_time_s, parse_settings, rail_geometry, travel_note
 from .line import CABLE, GarbledReply, SerialLine
-from .rail import Rail, direction_option, positive_option, require_port
+from .rail import GRBL_OPTIONS, Rail, require_port
 
 _BANNER = re.compile(r"^Grbl (\S+) \[.*\]$")
 _STATUS = re.compile(r"^<([A-Za-z]+)(?::\d+)?\|(.*)>$")
@@ -96,22 +96,22 @@ class GrblStage(Stage):
 
     @classmethod
     def from_spec(cls, spec: DeviceSpec) -> "GrblStage":
-        travel = spec.float("travel_mm", 0.0)
+        o = spec.take(GRBL_OPTIONS)  # the options, their defaults and checks: drivers/serial/rail.py
         return cls(
             require_port(spec),
-            baud=spec.int("baud", 115200),
-            offset_m=spec.float("offset_m", 0.3),
-            direction=direction_option(spec),
-            feed_mm_min=positive_option(spec, "feed", 3000.0),
-            settle_s=spec.float("settle", 0.2),
-            tolerance_mm=positive_option(spec, "tolerance_mm", 1.0),
-            travel_mm=positive_option(spec, "travel_mm", 1.0) if travel else None,
-            rail_min_mm=spec.float("rail_min_mm", 0.0) if "rail_min_mm" in spec.options else None,
-            homing=bool(spec.int("homing", 1)),
-            timeout_s=positive_option(spec, "timeout_s", 2.0),
-            home_timeout_s=positive_option(spec, "home_timeout_s", 120.0),
-            poll_s=positive_option(spec, "poll_s", 0.05),
-            stall_s=positive_option(spec, "stall_s", 3.0),
+            baud=o["baud"],
+            offset_m=o["offset_m"],
+            direction=o["direction"],
+            feed_mm_min=o["feed"],
+            settle_s=o["settle"],
+            tolerance_mm=o["tolerance_mm"],
+            travel_mm=o["travel_mm"],
+            rail_min_mm=o["rail_min_mm"],
+            homing=o["homing"],
+            timeout_s=o["timeout_s"],
+            home_timeout_s=o["home_timeout_s"],
+            poll_s=o["poll_s"],
+            stall_s=o["stall_s"],
         )
 
     # --- Stage ------------------------------------------------------------------------------------

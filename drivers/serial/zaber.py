@@ -26,7 +26,7 @@ from ..errors import StageError
 from ..registry import DeviceSpec
 from ..stage import Stage
 from .line import CABLE, SerialLine
-from .rail import Rail, direction_option, positive_option, require_port
+from .rail import ZABER_OPTIONS, Rail, require_port
 from .zaber_codes import ZABER_FLAGS, ZABER_REJECTIONS
 
 _ZABER_REPLY = re.compile(r"^@(\d+) (\d+) (?:(\d+) )?(OK|RJ) (IDLE|BUSY) (--|[A-Z]{2}) (\S[^:]*?)(?::([0-9A-Fa-f]{2}))?$")
@@ -99,23 +99,23 @@ class ZaberStage(Stage):
 
     @classmethod
     def from_spec(cls, spec: DeviceSpec) -> "ZaberStage":
-        travel_mm = spec.float("travel_mm", 0.0)
+        o = spec.take(ZABER_OPTIONS)  # the options, their defaults and checks: drivers/serial/rail.py
         return cls(
             require_port(spec),
-            baud=spec.int("baud", 115200),
-            device=spec.int("device", 1),
-            axis=spec.int("axis", 1),
-            microstep_um=positive_option(spec, "microstep_um", 0.1905),
-            device_id=spec.int("deviceid", 0) or None,
-            offset_m=spec.float("offset_m", 0.3),
-            direction=direction_option(spec),
-            settle_s=spec.float("settle", 0.2),
-            tolerance_mm=positive_option(spec, "tolerance_mm", 1.0),
-            travel_mm=travel_mm if travel_mm > 0 else None,
-            timeout_s=positive_option(spec, "timeout_s", 2.0),
-            home_timeout_s=positive_option(spec, "home_timeout_s", 120.0),
-            move_timeout_s=positive_option(spec, "move_timeout_s", 60.0),
-            poll_s=positive_option(spec, "poll_s", 0.05),
+            baud=o["baud"],
+            device=o["device"],
+            axis=o["axis"],
+            microstep_um=o["microstep_um"],
+            device_id=o["deviceid"],
+            offset_m=o["offset_m"],
+            direction=o["direction"],
+            settle_s=o["settle"],
+            tolerance_mm=o["tolerance_mm"],
+            travel_mm=o["travel_mm"],
+            timeout_s=o["timeout_s"],
+            home_timeout_s=o["home_timeout_s"],
+            move_timeout_s=o["move_timeout_s"],
+            poll_s=o["poll_s"],
         )
 
     # --- Stage ------------------------------------------------------------------------------------

@@ -19,7 +19,11 @@ from .usage import UsageError
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the tool commands to the `rig` parser."""
     p = sub.add_parser("devices", help="list attached cameras and serial ports; --check CAMERA checks one",
-                       description="List attached cameras and serial ports, or check a camera.")
+                       description="List attached cameras and serial ports, check a camera, or list a kind's "
+                                   "device-string options.")
+    p.add_argument("--options", metavar="KIND", nargs="?", const="",
+                   help="print the device-string options of a kind (e.g. grbl, zaber, fake, realsense, oak; "
+                        "every kind without KIND): defaults, units, accepted values")
     p.add_argument("--check", metavar="CAMERA", help="capture with the projector on and off, e.g. realsense: or fake:")
     p.add_argument("--seconds", type=float, default=4.0, help="capture time for --check, split between on and off (default 4)")
     p.add_argument("--exposure-us", type=float, default=8500.0, help="exposure for --check (default 8500 us)")
@@ -98,8 +102,28 @@ def print_listing(out: TextIO) -> int:
     return 0
 
 
+def print_options(kind: str, out: TextIO) -> int:
+    """The option tables of `kind` (a camera kind, a stage kind, or both, as `fake`); of every kind if it is ''."""
+    from drivers.registry import kinds, option_table
+
+    kind = kind.strip().rstrip(":").lower()
+    wanted = [(what, k) for what in ("camera", "stage") for k in kinds(what) if k == kind or not kind]
+    if not wanted:
+        known = ", ".join(sorted(set(kinds("camera")) | set(kinds("stage"))))
+        raise UsageError(f"--options {kind!r}: no such device kind; known kinds: {known}")
+    for i, (what, k) in enumerate(wanted):
+        table = option_table(what, k)
+        if i:
+            print(file=out)
+        for line in table.lines() if table is not None else [f"{k} {what}: (its plugin declares no option table)"]:
+            print(line, file=out)
+    return 0
+
+
 def cmd_devices(args: argparse.Namespace, out: TextIO | None = None) -> int:
     out = out or sys.stdout
+    if args.options is not None:
+        return print_options(args.options, out)
     if args.check is None:
         return print_listing(out)
     from ..camera_check.projector_check import run_check
