@@ -68,6 +68,15 @@ class Stage(abc.ABC):
                 f"(tolerance {self.tolerance_m * 1000:.1f} mm); check the stage for slip or obstruction and re-home"
             )
 
+    def setup_problems(self) -> list[str]:
+        """What the opened device knows will stop any plan before anything moves: one line each, naming
+        the setting to change. None by default."""
+        return []
+
+    def travel_note(self) -> str:
+        """Where `limits_m` comes from, as one more fix for stops beyond it ("" if there is nothing to add)."""
+        return ""
+
     def describe(self) -> dict[str, Any]:
         lo, hi = self.limits_m
         return {"kind": "stage", "name": self.name, "limits_m": [lo, hi], "tolerance_m": self.tolerance_m}

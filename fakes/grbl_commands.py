@@ -14,12 +14,14 @@ PLANNER_BLOCKS = 15
 
 
 class GrblSystemCommands:
-    """`$$`, `$N=value`, `$X`, `$H`, `$N`, `$Nx=line`, `$G`, `$#`, `$C`, `$I`, `$`, `$J=`, and `?`'s report."""
+    """`$$`, `$N=value`, `$X`, `$H`, `$N`, `$Nx=line`, `$G`, `$#`, `$C`, `$I`, `$SLP`, `$`, `$J=`, and `?`'s report."""
 
     # provided by GrblSim
     settings: dict[int, float]
     state: str
     carriage: Any
+    wco_counter: int
+    ovr_counter: int
 
     def _system_command(self, line: str, now_s: float) -> None:
         if line.startswith("$J="):
@@ -78,6 +80,14 @@ class GrblSystemCommands:
             self.send_line("[VER:1.1h.20190830:]")
             self.send_line(f"[OPT:V{'Z' if self.force_origin else ''},15,128]")
             self.send_line("ok")
+        elif line == "$SLP":
+            if self.state not in ("Idle", "Alarm"):
+                self.send_line("error:8")
+                return
+            self.send_line("ok")
+            self.send_line("[MSG:Sleeping]")
+            self.carriage.stop(now_s)
+            self.state = "Sleep"
         elif line == "$":
             self.send_line("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]")
             self.send_line("ok")
@@ -111,8 +121,17 @@ class GrblSystemCommands:
         switch = self.travel_mm if self.homes_positive else 0.0
         if abs(self.carriage.position_mm(now_s) - switch) < 1e-6 or not 0 < self.carriage.position_mm(now_s) < self.travel_mm:
             fields.append("Pn:X")
-        if self.reports % 10 == 1:
+        busy = self.state.split(":")[0] in ("Home", "Run", "Hold", "Jog", "Door")
+        if self.wco_counter > 0:  # report.c: WCO, then Ov in the report after it, each on its own counter
+            self.wco_counter -= 1
+        else:
+            self.wco_counter = (30 if busy else 10) - 1
+            if self.ovr_counter == 0:
+                self.ovr_counter = 1
             fields.append(f"WCO:{0:.{digits}f},{0:.{digits}f},{0:.{digits}f}")
-        elif self.reports % 10 == 2:
+        if self.ovr_counter > 0:
+            self.ovr_counter -= 1
+        else:
+            self.ovr_counter = (20 if busy else 10) - 1
             fields.append(f"Ov:{self.feed_override},{self.rapid_override},100")
         return "<" + "|".join(fields) + ">"

@@ -21,11 +21,21 @@ settings.md; source files named where the wiki is silent):
   answered, not even `?`, until Ctrl-X (protocol.c: the critical-event loop blocks everything). With
   hard limits off ($21=0, stock) a move past the end of the rail stalls the motor there: MPos goes on
   to the target and the steps are lost
-- real-time commands: `?` status, `!` feed hold (Hold:0 while decelerating, Hold:1 stopped), `~` resume,
-  0x85 jog cancel, feed and rapid overrides (0x90-0x97); a reset while moving gives ALARM:3 and loses
-  the position, a reset in Hold:1 keeps it (commands.md: feed hold before reset keeps position)
+- real-time commands: `?` status, `!` feed hold, `~` resume, 0x85 jog cancel, feed and rapid overrides
+  (0x90-0x97). A feed hold decelerates at $120: `Hold:1` while it brakes, `Hold:0` once it is still
+  (report.c: `Hold:0` is SUSPEND_HOLD_COMPLETE, "ready to resume"); `!` while Idle gives `Hold:0` at once;
+  `~` is ignored during `Hold:1` and resumes the move from `Hold:0` (or goes Idle if none is left). A reset
+  during Run, Jog or Hold:1 aborts the motion with ALARM:3 and loses the position (motion_control.c,
+  mc_reset: steppers killed while the motion or the hold's deceleration runs); a reset in Hold:0 keeps it
+  (interface.md: a reset after the hold is complete does not throw an alarm)
+- a soft reset resets the parser state (`$G`: G0 ... F0, gcode.c gc_init); a line that raised ALARM:2 gets
+  its `ok` only after the reset, before the banner; `$SLP` answers `ok` and `[MSG:Sleeping]`, reports
+  `Sleep`, reads no more lines, and the reset that wakes it leaves Alarm (protocol.c: sleep is re-entered
+  as an alarm, since the position cannot be guaranteed); `$SLP` outside Idle and Alarm is error:8
 - status reports per $10 (bit 0: MPos, else WPos; bit 1: Bf) with `FS`, `Pn:X` while a limit switch is
-  pressed, and `WCO` and `Ov` every tenth report; positions in inches when $13=1 (report.c)
+  pressed, `WCO` in the first report after a reset and then every 10th (idle) or 30th (busy), `Ov` in the
+  report after a WCO one and then every 10th or 20th, and at once after an override changes (report.c's
+  counters); positions in inches when $13=1 (report.c)
 - `$G` (`[GC:...]`), `$#`, `$I`, `$N`, `$C` (check mode: no motion; leaving it resets), `$X`, `$H`
 
 Faults for tests, via `inject()`: drop_reply, noise, unplug, position_error (mm=...), hard_limit (the
@@ -59,7 +69,7 @@ class GrblSim(GrblSystemCommands, PtyController):
         travel_mm: float = 3000.0,
         speed_mm_s: float = 2000.0,
         start_mm: float | None = None,
-        soft_limits: bool = True,
+        soft_limits: bool | None = None,
         homing: bool = True,
         accel_mm_s2: float = 1e5,
         settings: dict[int, float] | None = None,
@@ -69,12 +79,16 @@ class GrblSim(GrblSystemCommands, PtyController):
     ):
         """Fast by default (speed_mm_s sets $110 and the homing rates, accel_mm_s2 $120); `settings` override
         any setting; `GrblSim.stock()` is a freshly flashed controller. start_mm: where the carriage sits on
-        the rail at power-up, mm from its -X end."""
+        the rail at power-up, mm from its -X end. Soft limits are on when homing is, by default; soft limits
+        without homing are refused, as the firmware refuses `$20=1` with `$22=0` (error:10)."""
         super().__init__(seed=seed)
+        soft_limits = homing if soft_limits is None else soft_limits
         self.settings = dict(STOCK)
         self.settings.update({20: int(soft_limits), 22: int(homing), 110: speed_mm_s * 60.0, 24: speed_mm_s * 60.0,
                               25: speed_mm_s * 60.0, 120: accel_mm_s2, 130: travel_mm})
         self.settings.update(settings or {})
+        if self.settings[20] and not self.settings[22]:
+            raise ValueError("soft limits ($20=1) need homing ($22=1): GRBL refuses $20=1 with $22=0 (error:10)")
         self.force_origin = force_origin
         self.startup_lines = list(startup_lines)
         rail = self.settings[130]
@@ -92,12 +106,17 @@ class GrblSim(GrblSystemCommands, PtyController):
         self.mm_per_unit = 1.0
         self.feed_override = self.rapid_override = 100
         self.reports = 0
+        #: report.c's counters: reports until the next WCO and Ov fields (0: in the next report)
+        self.wco_counter = self.ovr_counter = 0
+        #: the line that raised ALARM:2 gets its `ok` after the reset (protocol.c returns to it only then)
+        self._owed_ok = False
         self._rx = bytearray()
         self._queue: list[tuple[str, float, float]] = []  # ("move" | "jog", machine mm, mm/min) or ("dwell", s, 0)
         self._dwell_until: float | None = None
         self._target: tuple[float, float] | None = None  # the current move's (machine mm, mm/min), for resume
         self._commanded_mm: float | None = None  # where MPos ends if the motor stalls at the end of the rail
         self._muted = False
+        self._jog_cancelled = False
 
     @classmethod
     def stock(cls, **options) -> "GrblSim":
@@ -150,8 +169,8 @@ class GrblSim(GrblSystemCommands, PtyController):
     def _drain(self, now_s: float) -> None:
         """Execute complete lines while the planner has room (GRBL stops reading when it is full)."""
         while not self.critical:
-            if sum(1 for q in self._queue if q[0] != "dwell") >= PLANNER_BLOCKS or self.state == "Home":
-                return
+            if sum(1 for q in self._queue if q[0] != "dwell") >= PLANNER_BLOCKS or self.state in ("Home", "Sleep"):
+                return  # a full planner, the homing cycle and sleep read no more lines
             ends = [i for i in (self._rx.find(b"\n"), self._rx.find(b"\r")) if i >= 0]
             if not ends:
                 return
@@ -169,15 +188,21 @@ class GrblSim(GrblSystemCommands, PtyController):
         if byte == ord("?"):
             if not self.drop_command("?"):
                 self.send_line(self._status(now_s))
-        elif byte == ord("!") and self.state in ("Run", "Jog"):
+        elif byte == ord("!") and self.state in ("Run", "Jog", "Idle"):
             self.commands.append("!")
+            if self.state == "Idle":
+                self.state = "Hold:0"  # protocol.c: a hold from Idle is complete at once
+                return
             if self.state == "Jog":
                 self._jog_cancel(now_s)
                 return
-            self.carriage.stop(now_s)
-            self.state = "Hold:0"  # Hold:1 at the next tick: the deceleration is short at $120
-        elif byte == ord("~") and self.state.startswith("Hold"):
+            self.carriage.brake(now_s)
+            self.state = "Hold:1" if self.carriage.moving() else "Hold:0"
+        elif byte == ord("~") and self.state == "Hold:0":  # ignored while the hold still brakes (Hold:1)
             self.commands.append("~")
+            if self._target is None and not self._queue:
+                self.state = "Idle"
+                return
             self.state = "Run"
             if self._target is not None:
                 self._start_move(*self._target, now_s)
@@ -187,8 +212,10 @@ class GrblSim(GrblSystemCommands, PtyController):
             self.feed_override = {0x90: 100, 0x91: self.feed_override + 10, 0x92: self.feed_override - 10,
                                   0x93: self.feed_override + 1, 0x94: self.feed_override - 1}[byte]
             self.feed_override = min(200, max(10, self.feed_override))
+            self.ovr_counter = 0  # protocol.c: a changed override is reported at once
         elif 0x95 <= byte <= 0x97:
             self.rapid_override = {0x95: 100, 0x96: 50, 0x97: 25}[byte]
+            self.ovr_counter = 0
 
     def _execute_line(self, raw: str, now_s: float) -> None:
         line = "".join(raw.split()).upper()
@@ -266,6 +293,7 @@ class GrblSim(GrblSystemCommands, PtyController):
         low, high = self.machine_limits_mm()
         if self.settings[20] and not low <= target <= high:
             self._critical_alarm(2, now_s)
+            self._owed_ok = True
             return None
         if self.state != "Check":
             self._queue.append(("move", target, self.feed_mm_min if self.motion == 1 else self.settings[110]))
@@ -295,14 +323,17 @@ class GrblSim(GrblSystemCommands, PtyController):
                 return
             if self._commanded_mm is not None:  # hard limits off: the motor stalls at the end, steps lost
                 self.origin_mm = self.carriage.position_mm(now_s) - self._commanded_mm
-        if self.state == "Hold:0" and not self.carriage.moving():
-            self.state = "Hold:1"
+        if self.state == "Hold:1" and not self.carriage.moving():
+            self.state = "Hold:0"  # the hold is complete: ready to resume, and a reset keeps the position
+        if self.state == "Jog" and self._jog_cancelled and not self.carriage.moving():
+            self._queue = [q for q in self._queue if q[0] != "jog"]
+            self.state, self._target, self._jog_cancelled = "Idle", None, False
         if self._dwell_until is not None:
             if now_s < self._dwell_until:
                 return
             self._dwell_until = None
             self.send_line("ok")
-        if self.carriage.moving() or self.state in ("Alarm", "Hold:0", "Hold:1"):
+        if self.carriage.moving() or self.state in ("Alarm", "Hold:0", "Hold:1", "Sleep"):
             return
         if not self._queue:
             if self.state in ("Run", "Jog"):
@@ -364,9 +395,12 @@ class GrblSim(GrblSystemCommands, PtyController):
             self._soft_reset(now, alarm_kept=True)
 
     def _jog_cancel(self, now_s: float) -> None:
-        self.carriage.stop(now_s)
+        """Brake and drop the jog; the state stays Jog until the carriage is still, then Idle (protocol.c)."""
+        self.carriage.brake(now_s)
         self._queue = [q for q in self._queue if q[0] != "jog"]
-        self.state, self._target = "Idle", None
+        self._jog_cancelled = True
+        if not self.carriage.moving():
+            self.state, self._target, self._jog_cancelled = "Idle", None, False
 
     def _critical_alarm(self, code: int, now_s: float) -> None:
         self.carriage.stop(now_s)
@@ -381,7 +415,7 @@ class GrblSim(GrblSystemCommands, PtyController):
 
     def _soft_reset(self, now_s: float, *, alarm_kept: bool = False) -> None:
         if not alarm_kept:
-            if self.state in ("Run", "Jog", "Hold:0") and self.carriage.moving():
+            if self.state in ("Run", "Jog", "Hold:1"):  # mc_reset: the motion or the hold's braking is cut short
                 self.carriage.stop(now_s)
                 self.state = "Alarm"
                 self.homed = False
@@ -390,15 +424,22 @@ class GrblSim(GrblSystemCommands, PtyController):
                 self.carriage.stop(now_s)
                 self.state = "Alarm"
                 self.send_line("ALARM:6")
-            elif self.state in ("Hold:1", "Check", "Jog", "Run"):
-                self.state = "Idle"  # stopped in a feed hold: the position is kept
+            elif self.state == "Sleep":
+                self.state = "Alarm"  # protocol.c: sleep is re-entered as an alarm
+            elif self.state in ("Hold:0", "Check"):
+                self.state = "Idle"  # stopped in a complete feed hold: the position is kept
+        if self._owed_ok:
+            self.send_line("ok")  # the line that raised ALARM:2 is answered on the way out of the alarm
+            self._owed_ok = False
         self._queue.clear()
         self._target = None
         self._dwell_until = None
+        self._jog_cancelled = False
         self._rx.clear()
         self.critical = False
-        self.absolute, self.mm_per_unit, self.motion = True, 1.0, 0
+        self.absolute, self.mm_per_unit, self.motion, self.feed_mm_min = True, 1.0, 0, 0.0  # gc_init: G0 G90 G21 F0
         self.feed_override = self.rapid_override = 100
+        self.wco_counter = self.ovr_counter = 0  # the system struct is cleared: both fields in the next reports
         self.write(b"\r\n")
         self.send_line(BANNER)
         if self.state == "Alarm":

@@ -69,6 +69,43 @@ class Move:
     def done(self, now_s: float) -> bool:
         return now_s - self.t0_s >= self._profile()[2]
 
+    def speed_at(self, now_s: float) -> float:
+        """The carriage's speed at now_s, mm/s (the slope of the trapezoid)."""
+        t = max(0.0, now_s - self.t0_s)
+        v, ramp, total = self._profile()
+        if t >= total:
+            return 0.0
+        if not self.accel_mm_s2:
+            return v
+        return min(v, self.accel_mm_s2 * t, self.accel_mm_s2 * (total - t))
+
+
+@dataclass
+class Stopping:
+    """The carriage braking to a halt at accel_mm_s2 from speed_mm_s (a feed hold): v^2 / 2a further on."""
+
+    start_mm: float
+    sign: float
+    t0_s: float
+    speed_mm_s: float
+    accel_mm_s2: float
+    outcome: str = "held"
+
+    @property
+    def end_mm(self) -> float:
+        return self.start_mm + self.sign * self.speed_mm_s ** 2 / (2.0 * self.accel_mm_s2)
+
+    @property
+    def final_mm(self) -> float:
+        return self.end_mm
+
+    def position_mm(self, now_s: float) -> float:
+        t = min(max(0.0, now_s - self.t0_s), self.speed_mm_s / self.accel_mm_s2)
+        return self.start_mm + self.sign * (self.speed_mm_s * t - 0.5 * self.accel_mm_s2 * t * t)
+
+    def done(self, now_s: float) -> bool:
+        return now_s - self.t0_s >= self.speed_mm_s / self.accel_mm_s2
+
 
 class Carriage:
     """The simulated carriage on a rail from 0 to travel_mm, with limit switches at both ends."""
@@ -78,7 +115,7 @@ class Carriage:
         self.speed_mm_s = speed_mm_s
         self.accel_mm_s2 = accel_mm_s2
         self._rest_mm = start_mm
-        self.move: Move | None = None
+        self.move: Move | Stopping | None = None
 
     def position_mm(self, now_s: float) -> float:
         return self.move.position_mm(now_s) if self.move else self._rest_mm
@@ -108,6 +145,23 @@ class Carriage:
         """Halt at once wherever the carriage is."""
         self._rest_mm = self.position_mm(now_s)
         self.move = None
+
+    def brake(self, now_s: float) -> None:
+        """Decelerate to a halt at accel_mm_s2 (a feed hold); at once without an acceleration."""
+        move = self.move
+        if not isinstance(move, Move) or not self.accel_mm_s2:
+            self.stop(now_s)
+            return
+        speed = move.speed_at(now_s)
+        if speed <= 0.0:
+            self.stop(now_s)
+            return
+        sign = 1.0 if move.end_mm >= move.start_mm else -1.0
+        stopping = Stopping(move.position_mm(now_s), sign, now_s, speed, self.accel_mm_s2)
+        if not 0.0 <= stopping.end_mm <= self.travel_mm:  # the end of the rail stops it first
+            self.stop(now_s)
+            return
+        self.move = stopping
 
     def update(self, now_s: float) -> str | None:
         """Finish a move whose time is up; return its outcome, or None while moving or at rest."""

@@ -17,7 +17,8 @@ def build_simulator(kind: str, *, travel_mm: float = 3000.0, speed_mm_s: float =
                     homing: bool = True, microstep_um: float = 0.1905) -> tuple[PtyController, str]:
     """A simulated controller ("grbl" or "zaber"), and the device-string options that fit it."""
     if kind == "grbl":
-        sim: PtyController = GrblSim(travel_mm=travel_mm, speed_mm_s=speed_mm_s, soft_limits=soft_limits, homing=homing)
+        sim: PtyController = GrblSim(travel_mm=travel_mm, speed_mm_s=speed_mm_s,
+                                      soft_limits=soft_limits and homing, homing=homing)  # $20 needs $22
         # the driver reads the travel ($130) and the feed cap ($110) from the controller
         return sim, f"offset_m=0.3&feed={speed_mm_s * 60:g}" + ("" if homing else "&homing=0")
     sim = ZaberSim(travel_mm=travel_mm, speed_mm_s=speed_mm_s, microstep_um=microstep_um)

@@ -49,6 +49,15 @@ class RigLimits:
     travel_m: tuple[float, float] | None = None
     stage_name: str = "stage"
     image_shape: tuple[int, int] | None = None
+    #: where the travel comes from, as one more fix for stops beyond it (`Stage.travel_note`)
+    travel_note: str = ""
+    #: what the opened stage knows will stop any plan (`Stage.setup_problems`)
+    stage_problems: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, stage: Any, image_shape: tuple[int, int] | None = None) -> "RigLimits":
+        """What an opened stage (and camera image) allow."""
+        return cls(stage.limits_m, stage.name, image_shape, stage.travel_note(), tuple(stage.setup_problems()))
 
 
 @dataclass(frozen=True)
@@ -87,7 +96,7 @@ def plan_problems(plan: Plan, limits: RigLimits = RigLimits(), *, output: str | 
     again, so they need neither travel nor disk."""
     recorded = set(recorded)
     recipes = {k: r for k, r in stop_recipes(plan).items() if k not in recorded}
-    problems = step_problems(plan, recipes)
+    problems = [*limits.stage_problems, *step_problems(plan, recipes)]
     if limits.travel_m is not None:
         problems += travel_problems(plan, recipes, limits)
     if output is not None:
@@ -130,7 +139,8 @@ def travel_problems(plan: Plan, recipes: dict[str, StopRecipe], limits: RigLimit
     where = ", ".join(f"{z:.3f} m" for z in outside[:6]) + (", ..." if len(outside) > 6 else "")
     verb = "is" if len(outside) == 1 else "are"
     return [f"{setting}: {where} {verb} outside the travel of {limits.stage_name}, {lo:.3f}-{hi:.3f} m; "
-            f"give stops within {lo:.3f}-{hi:.3f} m, or move the rail's zero (the stage's offset_m)"]
+            f"give stops within {lo:.3f}-{hi:.3f} m, or move the rail's zero (the stage's offset_m)"
+            + (f", or {limits.travel_note}" if limits.travel_note else "")]
 
 
 def output_problems(path: Path) -> list[str]:

@@ -219,7 +219,7 @@ class Runner:
 
     def _check_plan(self, plan: Plan, path: Path, resume: bool, done: set[str], shape: tuple[int, int]) -> None:
         """The whole plan against the opened devices, before homing or writing anything (`plan_check`)."""
-        limits = RigLimits(self.stage.limits_m, self.stage.name, shape)
+        limits = RigLimits.of(self.stage, shape)
         problems = plan_problems(plan, limits, output=path, resume=resume, recorded=done)
         if problems:
             raise PlanRefused(self._refused(problems, path, resume, done), problems)

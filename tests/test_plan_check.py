@@ -70,6 +70,47 @@ def test_a_serial_stage_is_checked_once_open_and_before_it_homes(tmp_path):
     assert nothing_written(tmp_path / "g.h5")
 
 
+def test_travel_read_from_the_controller_names_130(tmp_path):
+    # stock settings: $130=200 mm, so 0.3-0.5 m with homing=0; the fix names the setting a user has to change
+    sim = GrblSim.stock(start_mm=0.0).start()
+    try:
+        devices = open_devices(CAMERA, f"grbl://{sim.port}?offset_m=0.3&homing=0&settle=0&timeout_s=0.5&poll_s=0.01")
+        with pytest.raises(RunError) as err:
+            Runner(devices.camera, devices.stage).run(perpendicular(stops_m=[0.4, 1.0], frames_per_stop=3),
+                                                      tmp_path / "t.h5")
+    finally:
+        sim.stop()
+    msg = str(err.value)
+    assert "1.000 m is outside the travel of grbl" in msg, msg
+    assert "raise the controller's $130 (X max travel, now 200 mm)" in msg and "nothing was recorded" in msg, msg
+
+
+@pytest.mark.parametrize("device_options,fixes", [
+    ("homing=0", ["$20=0", "homing=1", "rail_min_mm=-1000&travel_mm=1000"]),
+    ("homing=1&rail_min_mm=0&travel_mm=500", ["make rail_min_mm and travel_mm lie within them"]),
+])
+def test_soft_limits_the_rail_cannot_respect_are_refused_before_anything_moves(tmp_path, device_options, fixes):
+    # $22=1 $20=1 on the controller: soft limits allow machine X -1000..0 only. Without homing the rail runs from
+    # MPos 0 towards +X, so the first move would end in ALARM:2; the plan check knows it before anything moves
+    sim = GrblSim(travel_mm=1000.0, speed_mm_s=20000.0, homing=True, soft_limits=True).start()
+    try:
+        devices = open_devices(CAMERA, f"grbl://{sim.port}?offset_m=0.3&{device_options}&settle=0&timeout_s=0.5"
+                                       "&poll_s=0.01")
+        with pytest.raises(RunError) as err:
+            Runner(devices.camera, devices.stage).run(perpendicular(stops_m=[0.5, 1.0], frames_per_stop=3),
+                                                      tmp_path / "s.h5")
+        assert not sim.homed and not any(c.startswith("G21 G53 G1") for c in sim.commands)  # nothing moved
+        assert not sim.critical
+    finally:
+        sim.stop()
+    msg = str(err.value)
+    assert "soft limits are on ($20=1) and allow machine X only within -1000..0 mm" in msg, msg
+    assert "ALARM:2" in msg and "\n" not in msg and "nothing was recorded" in msg
+    for fix in fixes:
+        assert fix in msg, (fix, msg)
+    assert nothing_written(tmp_path / "s.h5")
+
+
 def test_every_problem_is_listed_in_one_line():
     plan = perpendicular(stops_m=[0.5, 4.0], frames_per_stop=5)
     with pytest.raises(PlanError) as err:

@@ -219,15 +219,30 @@ def test_wrong_device_gives_no_banner():
 
 def test_dropped_reply_times_out(homed):
     sim, stage = homed
-    sim.inject("drop_reply")
-    with raises_for_port(sim, "no reply to", "within 0.3 s", "check the USB cable"):
-        stage.position_m()
+    if sim.kind == "grbl":  # one unanswered '?' is asked again; only a link that stays silent is an error
+        sim.inject("drop_reply")
+        assert stage.position_m() == pytest.approx(0.3, abs=1e-6)
+        sim.inject("drop_reply", count=3)
+        with raises_for_port(sim, "no reply to '?' in 3 tries of 0.3 s", "check the USB cable"):
+            stage.position_m()
+    else:
+        sim.inject("drop_reply")
+        with raises_for_port(sim, "no reply to", "within 0.3 s", "check the USB cable"):
+            stage.position_m()
     assert stage.position_m() == pytest.approx(0.3, abs=1e-6)  # the next exchange works
 
 
 def test_dropped_reply_during_a_move(homed):
     sim, stage = homed
     stage.move_to(1.0)
+    if sim.kind == "grbl":  # a lost line is sent again (every line the driver sends is idempotent)
+        sim.inject("drop_reply")
+        assert stage.move_to(1.5) == pytest.approx(1.5, abs=1e-6)
+        sim.inject("drop_reply", count=2)  # the move command is lost twice
+        with raises_for_port(sim, "no reply to 'G21 G53 G1 X1700.000", "in 2 tries of 0.3 s"):
+            stage.move_to(2.0)
+        assert sim.carriage.position_mm(time.monotonic()) == pytest.approx(1200.0, abs=1e-3)
+        return
     sim.inject("drop_reply")  # the move command itself is lost
     with raises_for_port(sim, "no reply to"):
         stage.move_to(2.0)
@@ -236,9 +251,17 @@ def test_dropped_reply_during_a_move(homed):
 
 def test_line_noise_is_reported_as_garbled(homed):
     sim, stage = homed
-    sim.inject("noise")
-    with raises_for_port(sim, "garbled reply", "baud=115200"):
-        stage.position_m()
+    if sim.kind == "grbl":  # one garbled report is asked again; a link that stays bad is named as such
+        sim.inject("noise")
+        assert stage.position_m() == pytest.approx(0.3, abs=1e-6)
+        sim.inject("noise", count=3)
+        with raises_for_port(sim, "no clean reply to '?' in 3 tries (3 garbled, the last", "baud=115200",
+                             "away from the motor wiring"):
+            stage.position_m()
+    else:
+        sim.inject("noise")
+        with raises_for_port(sim, "garbled reply", "baud=115200"):
+            stage.position_m()
     assert stage.move_to(1.2) == pytest.approx(1.2, abs=1e-6)
 
 

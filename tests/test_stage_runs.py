@@ -49,8 +49,8 @@ def test_perpendicular_run_records_the_planned_positions(tmp_path, kind):
 
 
 FAULTS = [
-    ("grbl", "drop_reply", {}, "no reply to"),
-    ("grbl", "noise", {}, "garbled reply"),
+    ("grbl", "drop_reply", {"count": 3}, "no reply to"),
+    ("grbl", "noise", {"count": 3}, "garbled, the last"),
     ("grbl", "unplug", {}, "port disconnected"),
     ("grbl", "position_error", {"mm": 5.0}, "commanded 1.2500 m but measured"),
     ("grbl", "hard_limit", {}, "ALARM:1"),
@@ -60,6 +60,28 @@ FAULTS = [
     ("zaber", "position_error", {"mm": 5.0}, "commanded 1.2500 m but measured"),
     ("zaber", "stall", {}, "stalled"),
 ]
+
+
+@pytest.mark.parametrize("fault", ["noise", "drop_reply"])
+def test_one_glitch_mid_run_is_asked_again_and_the_run_finishes(tmp_path, fault):
+    # GRBL: a garbled or unanswered status report while the carriage moves is asked for again
+    sim = start_sim("grbl")
+    armed = []
+
+    def arm_while_moving(e: ProgressEvent):
+        if e.kind == "stop_done" and e.stop_index == 2 and not armed:
+            armed.append(True)
+            sim.inject(fault, count=1)  # the next reply (the move's 'ok' or a status report) is lost or garbled
+
+    try:
+        devices = open_devices(CAMERA, stage_string("grbl", sim.port))
+        result = Runner(devices.camera, devices.stage, progress=arm_while_moving).run(
+            perpendicular(frames_per_stop=4, settle_s=0.0), tmp_path / "r.h5")
+    finally:
+        sim.stop()
+    assert armed and len(result.recorded) == len(STOPS)
+    with Recording(tmp_path / "r.h5") as rec:
+        assert all(abs(s.measured_position_m - s.commanded_position_m) < 1e-6 for s in rec.stops())
 
 
 @pytest.mark.parametrize("kind,fault,params,phrase", FAULTS, ids=[f"{k}-{f}" for k, f, _, _ in FAULTS])

@@ -41,6 +41,14 @@ def force_origin(options: str) -> bool:
     return "Z" in options.split(",")[0]
 
 
+def soft_limit_window(settings: dict[int, float], options: str) -> tuple[float, float]:
+    """The machine X that soft limits ($20=1) allow, mm (limits.c, system_check_travel_limits): -$130..0,
+    or 0..$130 with HOMING_FORCE_SET_ORIGIN and homing towards -X ($23 bit 0 set)."""
+    travel = settings[130]
+    towards_plus = not int(settings.get(23, 0)) & 1
+    return (0.0, travel) if force_origin(options) and not towards_plus else (-travel, 0.0)
+
+
 def rail_geometry(settings: dict[int, float], options: str, *, homing: bool) -> RailGeometry:
     travel = settings[130]
     if not homing:
@@ -50,7 +58,7 @@ def rail_geometry(settings: dict[int, float], options: str, *, homing: bool) -> 
         home = 0.0
     else:
         home = -settings[27] if towards_plus else -travel + settings[27]
-    low, high = (0.0, travel) if force_origin(options) and not towards_plus else (-travel, 0.0)
+    low, high = soft_limit_window(settings, options)
     away = -1 if towards_plus else 1
     return RailGeometry(home, away, (home - low) if away < 0 else (high - home))
 
@@ -61,7 +69,7 @@ def travel_note(settings: dict[int, float], options: str) -> str:
         return ""
     towards = "+X" if not int(settings.get(23, 0)) & 1 else "-X"
     built = "with" if force_origin(options) else "without"
-    low, high = (0.0, settings[130]) if force_origin(options) and towards == "-X" else (-settings[130], 0.0)
+    low, high = soft_limit_window(settings, options)
     return (f"; the controller allows machine X only within {low:g}..{high:g} mm ($130={settings[130]:g}, homing "
             f"towards {towards} {built} HOMING_FORCE_SET_ORIGIN)")
 

@@ -16,10 +16,14 @@ import serial
 from ..errors import StageError
 
 CABLE = "check the USB cable and that the controller is powered"
+#: no reply line of either protocol is longer (GRBL: 128-byte buffers; a status report is under 100)
+MAX_LINE = 256
 
 
 class GarbledReply(StageError):
-    """A reply that is not printable ASCII or not in the protocol (wrong baud, noise)."""
+    """A reply that is not printable ASCII or not in the protocol (wrong baud, noise); `raw` is what came."""
+
+    raw: bytes | str = b""
 
 
 class SerialLine:
@@ -29,6 +33,8 @@ class SerialLine:
         self.kind, self.path, self.baud, self.timeout_s = kind, path, baud, timeout_s
         self.name = f"{kind} {path}"
         self._port: serial.Serial | None = None
+        #: the start of a line whose end had not arrived by the last deadline (a late reply)
+        self._partial = b""
 
     def error(self, problem: str, fix: str) -> StageError:
         return StageError(f"{self.name}: {problem}; {fix}")
@@ -90,35 +96,60 @@ class SerialLine:
 
     def discard_input(self) -> None:
         port = self._require()
+        self._partial = b""
         try:
             port.reset_input_buffer()
         except (serial.SerialException, OSError) as e:
             raise self._disconnected("clearing the input", e) from None
 
+    @property
+    def waiting(self) -> bool:
+        """True if bytes have arrived that no read has taken yet (or a late line's start is held)."""
+        port = self._require()
+        try:
+            return bool(self._partial) or port.in_waiting > 0
+        except (serial.SerialException, OSError) as e:
+            raise self._disconnected("reading the input", e) from None
+
+    @property
+    def late(self) -> bool:
+        """True if the last read ended at its deadline in the middle of a line (its end may still come)."""
+        return bool(self._partial)
+
     def read_line(self, deadline_s: float, what: str) -> str | None:
-        """One line without its line end, or None if nothing arrived by deadline_s.
-        Raises on a partial line or bytes that are not printable ASCII."""
+        """One line without its line end, or None if no whole line arrived by deadline_s.
+
+        A line whose end has not arrived by the deadline is kept, and the next read goes on from it:
+        a late line end is not an error (a busy host or controller sends one now and then). Raises
+        `GarbledReply` on bytes that are not printable ASCII, or on a line start that grows past any
+        reply's length without an end (a wrong baud rate)."""
         port = self._require()
         try:
             port.timeout = max(0.0, deadline_s - time.monotonic())
-            raw = port.read_until(b"\n")
+            raw = self._partial + port.read_until(b"\n")
         except (serial.SerialException, OSError) as e:
             raise self._disconnected(f"waiting for the reply to {what}", e) from None
+        self._partial = b""
         if not raw:
             return None
-        if not raw.endswith(b"\n"):
-            raise self.garbled(raw, what)
         body = raw.rstrip(b"\r\n")
         if any(b < 0x20 or b > 0x7E for b in body):
             raise self.garbled(raw, what)
+        if not raw.endswith(b"\n"):
+            if len(raw) > MAX_LINE:
+                raise self.garbled(raw, what)
+            self._partial = raw
+            return None
         return body.decode("ascii")
 
-    def garbled(self, raw: bytes | str, what: str) -> StageError:
+    def garbled(self, raw: bytes | str, what: str) -> "GarbledReply":
         shown = raw if isinstance(raw, str) else raw[:60]
-        return GarbledReply(
+        error = GarbledReply(
             f"{self.name}: garbled reply {shown!r} to {what}; check that baud={self.baud} matches the controller "
             f"and that the cable is sound and away from motor wiring"
         )
+        error.raw = shown
+        return error
 
     def no_reply(self, what: str, timeout_s: float) -> StageError:
         return self.error(f"no reply to {what} within {timeout_s:.1f} s", f"{CABLE}")

@@ -112,7 +112,7 @@ class DeviceSession:
                 ("position", "not known (no stage)" if math.isnan(pos) else f"{pos:.4f} m"),
                 ("homed", "n/a" if h is None else ("yes" if h else "no: press h to home")),
                 ("travel", f"{lo:.2f}-{hi:.2f} m" if math.isfinite(hi) else "unlimited (no stage)")]
-        return DeviceReport(camera, rows, RigLimits((lo, hi), stage.name, (i.height, i.width)))
+        return DeviceReport(camera, rows, RigLimits.of(stage, (i.height, i.width)))
 
     def test_capture(self, settings: CameraSettings, n_frames: int = 10) -> TestCapture:
         """Apply the experiment's settings and capture a few frames where the stage stands now."""
