@@ -1,0 +1,298 @@
+"""The harness that runs the real GRBL 1.1h firmware (grbl-sim) on a pseudo-terminal: tests/grbl_firmware.py.
+
+Clients open `.port` with pyserial, as they would open /dev/ttyUSB0. Motion tests raise $110/$120: the stock
+500 mm/min and 10 mm/s^2 make every move take seconds.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import time
+
+import pytest
+import serial
+
+import grbl_firmware
+from grbl_firmware import GrblFirmware, require_firmware
+
+FAST = {110: 6000, 120: 500}  # 100 mm/s, 500 mm/s^2
+
+
+class Client:
+    """A pyserial client that reads lines and keeps the raw bytes."""
+
+    def __init__(self, port: str) -> None:
+        self.ser = serial.Serial(port, 115200, timeout=0.05)
+        self.raw = b""
+
+    def send(self, data: bytes | str) -> None:
+        self.ser.write(data.encode() if isinstance(data, str) else data)
+
+    def line(self, timeout_s: float = 2.0) -> bytes:
+        """The next line, line end included (b"" on timeout)."""
+        deadline = time.monotonic() + timeout_s
+        got = b""
+        while time.monotonic() < deadline:
+            got += self.ser.readline()
+            if got.endswith(b"\n"):
+                break
+        self.raw += got
+        return got
+
+    def until(self, pattern: str, timeout_s: float = 3.0) -> list[str]:
+        """Lines (decoded, stripped) up to and including the first that matches `pattern`."""
+        deadline = time.monotonic() + timeout_s
+        lines: list[str] = []
+        while time.monotonic() < deadline:
+            line = self.line(deadline - time.monotonic())
+            if line:
+                lines.append(line.decode("latin-1").strip())
+                if re.search(pattern, lines[-1]):
+                    return lines
+        raise AssertionError(f"no line matching {pattern!r} in {timeout_s} s; got {lines}")
+
+    def command(self, text: str, timeout_s: float = 3.0) -> list[str]:
+        self.send(text + "\n")
+        return self.until(r"^(ok|error:\d+)$", timeout_s)
+
+    def status(self) -> str:
+        self.send(b"?")
+        return self.until(r"^<.*>$")[-1]
+
+    def wait_idle(self, timeout_s: float = 10.0) -> str:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            report = self.status()
+            if report.startswith("<Idle"):
+                return report
+            time.sleep(0.05)
+        raise AssertionError(f"not Idle after {timeout_s} s: {report}")
+
+    def close(self) -> None:
+        self.ser.close()
+
+
+def mpos_x(report: str) -> float:
+    return float(re.search(r"MPos:(-?[\d.]+),", report).group(1))
+
+
+@pytest.fixture(scope="module")
+def exe():
+    return require_firmware()
+
+
+@pytest.fixture(scope="module")
+def stock(exe, tmp_path_factory):
+    """A freshly flashed controller (stock settings), shared by the tests that leave it as they found it."""
+    with GrblFirmware(tmp_path_factory.mktemp("stock"), exe=exe) as fw:
+        yield fw
+
+
+@pytest.fixture
+def client(stock):
+    stock.clear_faults()
+    c = Client(stock.port)
+    yield c
+    c.close()
+    stock.clear_faults()
+
+
+def test_missing_toolchain_is_a_one_line_skip_reason(monkeypatch):
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    reason = grbl_firmware.missing_toolchain()
+    assert reason and "\n" not in reason and "C compiler" in reason
+
+
+def test_settings_applied_at_start_are_in_dollar_dollar_and_a_move_ends_idle_at_the_commanded_mpos(exe, tmp_path):
+    with GrblFirmware(tmp_path, exe=exe, settings={**FAST, 100: 250, 22: 1, 20: 1}, x0_mm=150.0) as fw:
+        # written, then the controller power-cycled: with homing on it meets the client locked in Alarm
+        assert fw.starts == 2 and "[MSG:'$H'|'$X' to unlock]" in fw.startup_burst
+        c = Client(fw.port)
+        try:
+            settings = dict(line.split("=") for line in c.command("$$") if line.startswith("$"))
+            assert (settings["$110"], settings["$120"], settings["$22"], settings["$20"]) == ("6000.000", "500.000",
+                                                                                              "1", "1")
+            assert c.status().startswith("<Alarm|")
+            assert c.command("$X")[-1] == "ok"  # unlocked, not homed: soft limits allow MPos -200..0
+            t0 = time.monotonic()
+            assert c.command("G90 G1 X-42.5 F6000")[-1] == "ok"
+            report = c.wait_idle()
+            took = time.monotonic() - t0
+            assert mpos_x(report) == -42.5 and report.startswith("<Idle|MPos:-42.500,0.000,0.000|")
+            assert 0.5 < took < 2.0  # 42.5 mm at 100 mm/s with 500 mm/s^2 ramps: 0.6 s
+            assert fw.physical_x_mm() == pytest.approx(150.0 - 42.5)
+        finally:
+            c.close()
+
+
+def test_a_fresh_folder_powers_up_with_error_7_the_stock_settings_and_the_banner(stock):
+    burst = stock.startup_burst
+    assert burst[0] == "error:7"  # EEPROM.DAT did not exist: settings restored to the defaults
+    assert "$110=500.000" in burst and burst[-1] == "Grbl 1.1h ['$' for help]"
+    assert (stock.workdir / "EEPROM.DAT").is_file()
+
+
+def test_banner_after_ctrl_x(client):
+    client.send(b"\x18")
+    assert client.until(r"^Grbl 1\.1h")[-1] == "Grbl 1.1h ['$' for help]"
+
+
+def test_dollar_dollar_lists_the_stock_settings(client):
+    lines = client.command("$$")
+    settings = dict(line.split("=") for line in lines if line.startswith("$"))
+    assert settings["$110"] == "500.000" and settings["$120"] == "10.000" and settings["$130"] == "200.000"
+    assert settings["$22"] == "0" and settings["$20"] == "0" and settings["$21"] == "0" and settings["$27"] == "1.000"
+    assert lines[-1] == "ok"
+
+
+def test_homing_finds_the_switch_and_hard_limits_trip_at_the_end_of_the_rail(exe, tmp_path):
+    settings = {**FAST, 22: 1, 25: 3000, 24: 600, 26: 20, 27: 1.5}
+    with GrblFirmware(tmp_path, exe=exe, rail_mm=120.0, x0_mm=100.0, settings=settings) as fw:
+        c = Client(fw.port)
+        try:
+            assert c.status().startswith("<Alarm|")
+            assert c.command("$H", timeout_s=15.0)[-1] == "ok"  # towards +X: the switch at the rail's +X end
+            report = c.status()
+            assert report.startswith("<Idle|MPos:-1.500,0.000,0.000|") and "Pn:" not in report  # MPos -$27
+            assert fw.physical_x_mm() == pytest.approx(120.0 - 1.5)
+            # hard limits: running into the end of the rail trips the X switch
+            assert c.command("$21=1")[-1] == "ok"
+            c.send("G1 X5 F600\n")
+            lines = c.until(r"^ALARM:", timeout_s=3.0)
+            assert lines[-1] == "ALARM:1"  # hard limit (not 3: the pin-change interrupt ran as one piece)
+            assert fw.physical_x_mm() == pytest.approx(120.0)
+            # GRBL now locks up until reset; it clears a reset that came during its 0.5 s ALARM pause
+            assert c.until(r"^\[MSG:")[-1] == "[MSG:Reset to continue]"
+            c.send(b"\x18")
+            assert "[MSG:Check Limits]" in c.until(r"to unlock\]$")
+            assert "Pn:X" in c.status()
+        finally:
+            c.close()
+
+
+def test_no_switch_reads_triggered_in_the_middle_of_the_rail(client, stock):
+    report = client.status()
+    assert report.startswith("<Idle|MPos:0.000,0.000,0.000|") and "Pn:" not in report
+    assert stock.physical_x_mm() == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize("kind, expect", [
+    ("letter", rb"^<Idle\|MPPs:0\.000,0\.000,0\.000\|FS:0,0.*>\r\n$"),
+    ("separator", rb"^<Idle\|MPos::0\.000,0\.000,0\.000\|.*>\r\n$"),
+    ("non_ascii", rb"^<Idle\|MPos:\xb0\.000,0\.000,0\.000\|.*>\r\n$"),
+])
+def test_a_garbled_status_report_arrives_garbled_once(client, stock, kind, expect):
+    stock.garble_next_status(kind)
+    client.send(b"?")
+    assert re.match(expect, client.line()), client.raw
+    assert client.status().startswith("<Idle|MPos:0.000,0.000,0.000|")  # one-shot
+
+
+def test_a_truncated_status_report_has_no_line_end_and_runs_into_the_next_line(client, stock):
+    stock.garble_next_status("truncate")
+    client.send(b"?")
+    time.sleep(0.2)
+    client.send(b"$I\n")
+    joined = client.line()
+    head = joined.removesuffix(b"[VER:1.1h.20190830:]\r\n")
+    assert head != joined and head.startswith(b"<Idle|MPos:") and b">" not in head, joined  # half a report
+    assert client.until(r"^ok$")[-1] == "ok"
+
+
+def test_a_link_that_stays_bad_garbles_every_report_until_cleared(client, stock):
+    stock.garble_status_reports(None, "separator")
+    for _ in range(3):
+        client.send(b"?")
+        assert b"MPos::" in client.line()
+    stock.clear_faults()
+    client.send(b"?")
+    assert b"MPos:0.000" in client.line()
+
+
+def test_a_killed_controller_vanishes_and_restarts_on_a_new_port_where_the_carriage_was(exe, tmp_path):
+    with GrblFirmware(tmp_path, exe=exe, settings=FAST, x0_mm=100.0) as fw:
+        c = Client(fw.port)
+        try:
+            c.command("G1 X-80 F6000")
+            time.sleep(0.35)  # mid-move
+            assert c.status().startswith("<Run|")
+            old_port = fw.port
+            fw.kill()
+            where = fw.physical_x_mm()
+            assert 20.0 < where < 99.0  # the carriage file says where the move was cut off
+            assert not os.path.exists(old_port)  # unplugged
+            with pytest.raises(serial.SerialException):
+                c.send(b"?")
+                c.line(timeout_s=0.5)
+        finally:
+            c.close()
+        fw.restart()
+        assert fw.port != old_port and fw.alive
+        c = Client(fw.port)
+        try:
+            assert c.status().startswith("<Idle|MPos:0.000,0.000,0.000|")  # MPos restarts at 0 ...
+            assert fw.physical_x_mm() == pytest.approx(where)  # ... where the carriage stopped
+            settings = dict(line.split("=") for line in c.command("$$") if line.startswith("$"))
+            assert settings["$110"] == "6000.000"  # EEPROM.DAT kept what was written before the kill
+            c.command("G91 G1 X10 F6000")
+            assert mpos_x(c.wait_idle()) == 10.0 and fw.physical_x_mm() == pytest.approx(where + 10.0)
+        finally:
+            c.close()
+
+
+def test_a_delayed_reply_is_held_and_lines_after_it_wait_behind_it(client, stock):
+    stock.delay_next_reply(0.6)
+    t0 = time.monotonic()
+    client.send(b"?")
+    time.sleep(0.1)
+    client.send(b"$I\n")
+    assert client.line(timeout_s=0.4) == b""  # nothing yet: the report is held and [VER...] waits behind it
+    assert client.line().startswith(b"<Idle|")
+    assert time.monotonic() - t0 >= 0.6
+    assert client.until(r"^ok$")[0].startswith("[VER:")
+    # the firmware answered at once: only the bridge held the reply
+    report_t = next(e.t for e in reversed(stock.lines) if e.data.startswith("<Idle"))
+    sent_t = next(e.t for e in reversed(stock.sent) if e.data == b"?")
+    assert report_t - sent_t < 0.3
+
+
+def test_a_dropped_byte_never_reaches_the_firmware(client, stock):
+    stock.drop_next(b"?")
+    client.send(b"?")
+    assert client.line(timeout_s=0.4) == b""  # GRBL never saw it
+    assert stock.sent[-1].data == b"?"  # the bridge did
+    client.send(b"?")
+    assert client.line().startswith(b"<Idle|")
+
+
+def test_a_stalled_link_forwards_nothing_then_delivers_what_it_held(client, stock):
+    stock.stall(0.6)
+    t0 = time.monotonic()
+    client.send(b"$I\n")
+    assert client.line(timeout_s=0.45) == b""
+    lines = client.until(r"^ok$")
+    assert lines[0].startswith("[VER:1.1h") and time.monotonic() - t0 >= 0.6
+    ver_t = next(e.t for e in reversed(stock.lines) if e.data.startswith("[VER:"))
+    sent_t = next(e.t for e in reversed(stock.sent) if e.data == b"$I\n")
+    assert ver_t - sent_t >= 0.55  # the firmware got the line only when the stall ended
+
+
+def test_ctrl_f_and_0xff_from_the_client_are_ignored_as_a_real_grbl_would(client, stock):
+    client.send(b"\x06\xff")  # grbl-sim would exit on either; the bridge keeps them from it
+    time.sleep(0.2)
+    assert stock.alive and client.status().startswith("<Idle|")
+
+
+def test_query_talks_to_the_firmware_outside_the_clients_port(stock):
+    lines = stock.query("$I")
+    assert lines[0] == "[VER:1.1h.20190830:]" and lines[-1] == "ok"
+    assert stock.status().startswith("<Idle|")
+    ticks, seconds = stock.sim_clock()
+    assert ticks > 16_000_000 and seconds > 1.0
+    t0 = time.monotonic()
+    time.sleep(0.5)
+    _, later = stock.sim_clock()
+    # simulated time keeps up with real time (the patched sim sleeps when idle instead of falling behind)
+    assert (later - seconds) / (time.monotonic() - t0) == pytest.approx(1.0, abs=0.1)
