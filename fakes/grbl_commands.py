@@ -7,7 +7,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from .grbl_settings import offsets_lines, parser_state, settings_lines, write_setting
+from .grbl_settings import offsets_lines, parser_state, rate_text, settings_lines, write_setting
 
 RX_BUFFER = 128
 PLANNER_BLOCKS = 15
@@ -59,7 +59,8 @@ class GrblSystemCommands:
             self.send_line("ok")
         elif line == "$G":
             self.send_line(parser_state(motion=self.motion, inches=self.mm_per_unit != 1.0,
-                                        relative=not self.absolute, feed_mm_min=self.feed_mm_min))
+                                        relative=not self.absolute, feed_mm_min=self.feed_mm_min,
+                                        report_inches=int(self.settings[13]) == 1))
             self.send_line("ok")
         elif line == "$#":
             for text in offsets_lines():
@@ -117,7 +118,7 @@ class GrblSystemCommands:
         if int(self.settings[10]) & 2:
             fields.append(f"Bf:{PLANNER_BLOCKS - len(self._queue)},{RX_BUFFER - len(self._rx)}")
         feed = self._target[1] if self._target and self.state in ("Run", "Jog") else 0.0
-        fields.append(f"FS:{min(feed, self.settings[110]) * scale:.0f},0")
+        fields.append(f"FS:{rate_text(min(feed, self.settings[110]), inches)},0")
         switch = self.travel_mm if self.homes_positive else 0.0
         if abs(self.carriage.position_mm(now_s) - switch) < 1e-6 or not 0 < self.carriage.position_mm(now_s) < self.travel_mm:
             fields.append("Pn:X")

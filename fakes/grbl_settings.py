@@ -40,10 +40,17 @@ def write_setting(settings: dict[int, float], n: int, text: str) -> str | None:
     return None
 
 
-def parser_state(*, motion: int, inches: bool, relative: bool, feed_mm_min: float) -> str:
-    """The `$G` reply line: the active modal state (report.c, report_gcode_modes)."""
+def rate_text(feed_mm_min: float, report_inches: bool) -> str:
+    """A feed rate as report.c prints it (printFloat_RateValue): mm/min with no decimals, or with $13=1
+    inches/min with one."""
+    return f"{feed_mm_min / 25.4:.1f}" if report_inches else f"{feed_mm_min:.0f}"
+
+
+def parser_state(*, motion: int, inches: bool, relative: bool, feed_mm_min: float, report_inches: bool) -> str:
+    """The `$G` reply line: the active modal state (report.c, report_gcode_modes); the feed in the units
+    $13 reports in."""
     return (f"[GC:G{motion} G54 G17 {'G20' if inches else 'G21'} {'G91' if relative else 'G90'} G94 M5 M9 T0 "
-            f"F{feed_mm_min:g} S0]")
+            f"F{rate_text(feed_mm_min, report_inches)} S0]")
 
 
 def offsets_lines() -> list[str]:

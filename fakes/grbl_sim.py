@@ -265,7 +265,9 @@ class GrblSim(GrblSystemCommands, PtyController):
             elif letter not in ("Y", "Z", "N", "M", "S", "T"):
                 return "error:20"
         if jog:
-            if x is None or feed is None:
+            if feed is None:
+                return "error:22"  # gcode.c: a jog needs its F word (step 2), before anything else is checked
+            if x is None:
                 return "error:16"
             current = self._planned_end_mm(now_s)
             target = x * mm_per_unit if (absolute or machine) else current + x * mm_per_unit

@@ -997,6 +997,11 @@ class GrblFirmware:
         match = next(re.match(r"^(\d+) (\d+\.\d+)$", line) for line in lines if re.match(r"^\d+ \d", line))
         return int(match.group(1)), float(match.group(2))
 
+    def press(self, data: bytes) -> None:
+        """Real-time bytes from the harness, as the controller's own buttons send them (`!` feed hold, `~` cycle
+        start, Ctrl-X reset): the client does not see them sent."""
+        self._require_session().send_from_harness(data)
+
     def kill(self) -> None:
         """SIGKILL the firmware and close the pty: the port goes away, like an unplugged controller."""
         session = self._require_session()
