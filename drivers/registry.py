@@ -86,14 +86,14 @@ class DeviceSpec:
                     raise DeviceError(f"device string {text!r}: option {unquote_plus(item)!r} is not KEY=VALUE; "
                                       f"write e.g. '{kind}:///dev/ttyUSB0?offset_m=0.3'")
                 key, value = item.split("=", 1)
-                options[unquote_plus(key).strip()] = unquote_plus(value)
+                _add_option(options, unquote_plus(key).strip(), unquote_plus(value), text)
             return cls(kind, path, options, text)
         options = {}
         for item in filter(None, (p.strip() for p in _split_options(rest))):
             if "=" not in item:
                 raise DeviceError(f"device string {text!r}: option {item!r} is not KEY=VALUE; write e.g. 'fake:width=424'")
             key, value = item.split("=", 1)
-            options[key.strip()] = value.strip()
+            _add_option(options, key.strip(), value.strip(), text)
         return cls(kind, "", options, text)
 
     def take(self, table: OptionTable) -> dict[str, Any]:
@@ -116,6 +116,13 @@ class DeviceSpec:
             return typ(self.options[key])
         except ValueError:
             raise DeviceError(f"device {self.text!r}: {key}={self.options[key]!r} is not a {typ.__name__}") from None
+
+
+def _add_option(options: dict[str, str], key: str, value: str, text: str) -> None:
+    """One option into `options`; a key given twice is refused (which one was meant is anyone's guess)."""
+    if key in options:
+        raise DeviceError(f"device string {text!r} gives {key} twice ({options[key]!r} and {value!r}); keep one")
+    options[key] = value
 
 
 def _split_options(text: str) -> list[str]:

@@ -340,3 +340,9 @@ def test_rig_run_refuses_an_out_of_range_stage_value(tmp_path, capsys):
     code = main(["run", "--protocol", "perpendicular", "--stage", "zaber:///dev/null?travel_mm=-500", "-o", str(tmp_path / "x.h5")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "travel_mm must be positive, not -500" in err
+
+
+@pytest.mark.parametrize("text", ["grbl:///dev/ttyUSB0?offset_m=0.3&offset_m=0.5", "fake:width=16,width=32"])
+def test_a_key_given_twice_is_refused(text):
+    with pytest.raises(DeviceError, match=r"gives (offset_m|width) twice \('(0.3|16)' and '(0.5|32)'\); keep one"):
+        DeviceSpec.parse(text)

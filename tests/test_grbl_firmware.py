@@ -54,6 +54,8 @@ class Run:
     def __init__(self, fw: GrblFirmware, path: Path, stops: list[float], options: str = ""):
         self.fw, self.path, self.stops, self.options = fw, path, stops, options
         self.physical: dict[float, float] = {}
+        #: called with each stop's distance once the stage is there, before its capture
+        self.at_stop = lambda z: None
 
     def __call__(self, *, resume: bool = False) -> list[str]:
         devices = open_devices(CAMERA, f"grbl://{self.fw.port}?offset_m={OFFSET_M}&{DRIVER}&{self.options}")
@@ -61,6 +63,7 @@ class Run:
         def note(e: ProgressEvent) -> None:
             if e.kind == "stop_start":  # the stage has arrived and the capture begins
                 self.physical[self.stops[e.stop_index]] = self.fw.physical_x_mm()
+                self.at_stop(self.stops[e.stop_index])
 
         plan = perpendicular(stops_m=self.stops, frames_per_stop=2, settle_s=0.0)
         return Runner(devices.camera, devices.stage, progress=note).run(plan, self.path, resume=resume).recorded
@@ -204,6 +207,27 @@ def test_a_stalled_link_is_not_reset_blind(tmp_path):
     msg = fail_mid_move_then_resume(tmp_path, lambda fw: fw.stall(6.0), "no reply to '?'",
                                     cleanup=lambda fw: time.sleep(6.0))
     assert "so the controller was not reset" in msg, msg
+
+
+def test_a_move_never_acknowledged_is_stopped_safely(tmp_path):
+    # the move's 'ok' is held past both tries: the move may have started, so the driver holds before it resets
+    def hold_the_ok(fw: GrblFirmware) -> None:
+        fw.delay_next_reply(2.0, prefix=b"ok")
+
+    with GrblFirmware(tmp_path / "fw", rail_mm=RAIL_MM, x0_mm=5.0, settings={130: RAIL_MM, 110: 1200, 120: 100}) as fw:
+        run = Run(fw, tmp_path / "s.h5", [0.5, 0.6, 0.7], "homing=0")
+        run.at_stop = lambda z: hold_the_ok(fw) if z == 0.5 else None  # the next 'ok' is the move to 0.6 m's
+        with pytest.raises(RunError) as err:
+            run()
+        run.at_stop = lambda z: None
+        assert "ALARM:3" not in alarms(fw)
+        time.sleep(1.0)
+        assert report(fw).startswith(("<Idle", "<Hold:0"))
+        msg = str(err.value)
+        assert "no reply to 'G21 G53 G1 X" in msg and "in 2 tries" in msg and "position kept" in msg, msg
+        assert run(resume=True)
+        run.check_positions(homing=False, x0_mm=5.0)
+        assert "ALARM:3" not in alarms(fw)
 
 
 @pytest.mark.parametrize("glitch", ["letter", "separator", "non_ascii", "truncate", "drop", "late"])
