@@ -26,6 +26,11 @@ What the firmware does on a host (2 AMD EPYC cores; "sim time" is grbl-sim's 16 
   GRBL's own thread spins in every wait (12 % of a core idle, 100 % in a feed hold). Patched (`sim-sleep`,
   `poll-stdin-cheaply`, `grbl-thread-sleep`): 0.06 cores idle, ~0.2 moving or homing, 0.05 in a hold, and sim
   time within 0.1 % of real time, loaded or not (tests/vendor/grbl/README.md has the table).
+- grbl-sim runs GRBL's main program and its interrupts in two threads. Stock, they shared SREG, and one could
+  write back the other's cleared I bit: interrupts off for good, a move frozen in Run while the reports still
+  came (~1 move in 70 with a '?' every 20 ms, within seconds under a '?' flood); and GRBL's serial rings, as
+  compiled, could hand over a byte before it was stored: a stale character in a reply. Patched
+  (`sreg-per-thread`, `ring-buffer-order`): neither, in 600 moves polled every 20 ms, loaded or not.
 - `%` makes grbl-sim print `<ticks> <sim seconds>\n` (a bare "\n", not GRBL's "\r\n") and is then handed to
   GRBL as an ordinary character, which ends up in the next line (`%` alone: error:1, or error:9 in Alarm;
   `%$$`: error:1). The bridge never forwards that line to the client; `sim_clock()` asks for it.
@@ -163,7 +168,8 @@ PATCHES: tuple[Patch, ...] = (
         "extern uint8_t serial_tx_buffer_head;\n"
         "extern volatile uint8_t serial_tx_buffer_tail;\n"
         "void simulate_write_interrupt(){\n"
-        "  while (serial_tx_buffer_tail != *(volatile uint8_t *)&serial_tx_buffer_head){\n",
+        "  while (serial_tx_buffer_tail != *(volatile uint8_t *)&serial_tx_buffer_head){\n"
+        "    __atomic_thread_fence(__ATOMIC_ACQUIRE); // the byte was stored before the head that shows it\n",
     ),
     Patch(
         "sim-sleep: declare", "grbl-sim/simulator.c",
@@ -244,6 +250,85 @@ PATCHES: tuple[Patch, ...] = (
         "  if (!char_in) { rig_next_poll = sim.masterclock + F_CPU/20000; }\n"
         "  return char_in;\n"
         "}\n",
+    ),
+    Patch(
+        "ring-buffer-order: tx", "serial.c",
+        "  serial_tx_buffer[serial_tx_buffer_head] = data;\n  serial_tx_buffer_head = next_head;\n",
+        "  serial_tx_buffer[serial_tx_buffer_head] = data;\n"
+        "  // rig patch: the byte before the head that hands it over. gcc -O2 stored the head first (the two are\n"
+        "  // plain variables), and the other thread, seeing the new head, could send the byte that was there\n"
+        "  // before: a stale character in a reply (<Run|MPos:14.07200.000,...>). Same for the RX ring below.\n"
+        "  __atomic_thread_fence(__ATOMIC_RELEASE);\n"
+        "  serial_tx_buffer_head = next_head;\n",
+    ),
+    Patch(
+        "ring-buffer-order: rx", "serial.c",
+        "          serial_rx_buffer[serial_rx_buffer_head] = data;\n          serial_rx_buffer_head = next_head;\n",
+        "          serial_rx_buffer[serial_rx_buffer_head] = data;\n"
+        "          __atomic_thread_fence(__ATOMIC_RELEASE); // rig patch: the byte before the head (see serial_write)\n"
+        "          serial_rx_buffer_head = next_head;\n",
+    ),
+    Patch(
+        "ring-buffer-order: rx read", "serial.c",
+        "    uint8_t data = serial_rx_buffer[tail];\n",
+        "    __atomic_thread_fence(__ATOMIC_ACQUIRE); // rig patch: read the byte after the head that showed it,\n"
+        "    uint8_t data = serial_rx_buffer[tail];\n"
+        "    __atomic_thread_fence(__ATOMIC_RELEASE); // and before the tail that frees its slot\n",
+    ),
+    Patch(
+        "sreg-per-thread: SREG", "grbl-sim/avr/io.h",
+        "#define SREG io.sreg\n",
+        "// rig patch: GRBL's main program and its interrupts run in two threads; each sees its own SREG (see\n"
+        "// sim_sreg() in interrupt.c). The I bit that gates the interrupts is the main program's, io.sreg.\n"
+        "volatile uint8_t *sim_sreg(void);\n"
+        "#define SREG (*sim_sreg())\n",
+    ),
+    Patch(
+        "sreg-per-thread: sei/cli", "grbl-sim/avr/interrupt.c",
+        "void sei() {io.sreg|=SEI;}\nvoid cli() {io.sreg&=~SEI;}\n",
+        "// rig patch: one SREG shared by two threads lost the I bit for good. GRBL guards its realtime flags with\n"
+        "// `sreg = SREG; cli(); flags |= mask; SREG = sreg;` (system.c), in the main program and in interrupts\n"
+        "// ('?' in the serial RX interrupt, cycle stop in the stepper's). If an interrupt saved SREG while the\n"
+        "// main program was between its cli() and its restore, the interrupt saved I=0 and wrote it back after the\n"
+        "// main program had set I again: interrupts stayed disabled for ever, the stepper interrupt never ran again\n"
+        "// (MPos frozen in Run, a feed hold stuck in Hold:1) while the serial port, which the sim runs whatever I\n"
+        "// says, kept answering. On the AVR an interrupt cannot run inside the main program's cli() section, and\n"
+        "// enters with I clear and leaves with RETI. So: the main program's thread (sim_enter_avr_main()) works on\n"
+        "// io.sreg, which gates the interrupts (timer_interrupts, rig_hw.c); code run as an interrupt works on a\n"
+        "// register of its own thread, which gates nothing (the sim never nests interrupts).\n"
+        "static __thread uint8_t isr_sreg = 0;\n"
+        "static __thread uint8_t avr_main_context = 0;\n"
+        "void sim_enter_avr_main(void) { avr_main_context = 1; }\n"
+        "volatile uint8_t *sim_sreg(void) { return avr_main_context ? &io.sreg : &isr_sreg; }\n"
+        "void sei() {SREG|=SEI;}\nvoid cli() {SREG&=~SEI;}\n",
+    ),
+    Patch(
+        "sreg-per-thread: main program", "grbl-sim/main.c",
+        "PLAT_THREAD_FUNC(avr_main_thread,exit){\n  avr_main();\n",
+        "void sim_enter_avr_main(void); // rig patch: this thread is the AVR's main program (avr/interrupt.c)\n"
+        "PLAT_THREAD_FUNC(avr_main_thread,exit){\n  sim_enter_avr_main();\n  avr_main();\n",
+    ),
+    Patch(
+        "sreg-per-thread: atomic flags (set)", "system.c",
+        "  sys_rt_exec_state |= (mask);\n",
+        "  // rig patch: on the host, cli() in one thread does not stop an interrupt already running in the other;\n"
+        "  // make the read-modify-write of the flags atomic so that neither loses the other's bit\n"
+        "  __atomic_or_fetch(&sys_rt_exec_state, (mask), __ATOMIC_SEQ_CST);\n",
+    ),
+    Patch(
+        "sreg-per-thread: atomic flags (clear)", "system.c",
+        "  sys_rt_exec_state &= ~(mask);\n",
+        "  __atomic_and_fetch(&sys_rt_exec_state, (uint8_t)~(mask), __ATOMIC_SEQ_CST); // rig patch: atomic\n",
+    ),
+    Patch(
+        "sreg-per-thread: atomic flags (motion override)", "system.c",
+        "  sys_rt_exec_motion_override |= (mask);\n",
+        "  __atomic_or_fetch(&sys_rt_exec_motion_override, (mask), __ATOMIC_SEQ_CST); // rig patch: atomic\n",
+    ),
+    Patch(
+        "sreg-per-thread: atomic flags (accessory override)", "system.c",
+        "  sys_rt_exec_accessory_override |= (mask);\n",
+        "  __atomic_or_fetch(&sys_rt_exec_accessory_override, (mask), __ATOMIC_SEQ_CST); // rig patch: atomic\n",
     ),
 )
 
@@ -351,7 +436,7 @@ void rig_hw_tick(void) {
     set_limit_pins();
   }
   step_level = level;
-  if (limit_change_pending && (SREG & SEI)) {
+  if (limit_change_pending && (io.sreg & SEI)) {  // the main program's I bit (SREG here is this thread's)
     limit_change_pending = 0;
     if ((PCICR & (1 << LIMIT_INT)) && pc_vect) {
       rig_isr_active = 1;  // GRBL's main program waits (protocol_exec_rt_system) until the interrupt is over
@@ -489,11 +574,20 @@ def missing_toolchain() -> str | None:
     return None
 
 
-def build_key() -> str:
+def build_key(patches: Iterable[Patch] = PATCHES) -> str:
     """A hash of the tarball, the patches, the new files and the build flags."""
     digest = hashlib.sha256(TARBALL.read_bytes())
-    digest.update(repr((PATCHES, sorted(NEW_FILES.items()), MAKE_FLAGS)).encode())
+    digest.update(repr((tuple(patches), sorted(NEW_FILES.items()), MAKE_FLAGS)).encode())
     return digest.hexdigest()[:16]
+
+
+def patches_without(*prefixes: str) -> tuple[Patch, ...]:
+    """PATCHES minus those whose name starts with one of `prefixes` (for experiments: build_firmware(patches=...)
+    builds such a variant into its own folder). Every prefix must match a patch."""
+    for prefix in prefixes:
+        if not any(p.name.startswith(prefix) for p in PATCHES):
+            raise ValueError(f"no patch named {prefix!r}...; the patches: {[p.name for p in PATCHES]}")
+    return tuple(p for p in PATCHES if not p.name.startswith(prefixes))
 
 
 def cache_root() -> Path:
@@ -501,11 +595,13 @@ def cache_root() -> Path:
     return Path(base) / "rig-tests"
 
 
-def build_firmware() -> Path:
-    """Build grbl_sim.exe (once per tarball-and-patches hash) and return its path. Safe across processes."""
+def build_firmware(patches: Iterable[Patch] | None = None) -> Path:
+    """Build grbl_sim.exe (once per tarball-and-patches hash) and return its path. Safe across processes.
+    `patches` (default PATCHES; see patches_without()) builds a variant, into its own folder."""
+    patches = PATCHES if patches is None else tuple(patches)
     root = cache_root()
     root.mkdir(parents=True, exist_ok=True)
-    key = build_key()
+    key = build_key(patches)
     final = root / f"grbl-{key}"
     exe = final / "grbl" / "grbl-sim" / EXE_NAME
     if exe.is_file():
@@ -521,7 +617,7 @@ def build_firmware() -> Path:
                     tar.extractall(work, filter="data")
                 else:
                     tar.extractall(work)
-            apply_patches(work / "grbl")
+            apply_patches(work / "grbl", patches)
             env = dict(os.environ)
             if not shutil.which("cc"):
                 env["CC"] = "gcc"
@@ -531,7 +627,7 @@ def build_firmware() -> Path:
                 raise RuntimeError(f"building the GRBL firmware failed (make exit {make.returncode}):\n"
                                    f"{(make.stdout + make.stderr)[-4000:]}")
             (work / "BUILD.txt").write_text(f"make main FLAGS={MAKE_FLAGS!r}\npatches: "
-                                            + ", ".join(p.name for p in PATCHES) + "\n")
+                                            + ", ".join(p.name for p in patches) + "\n")
             if final.exists():  # a half-removed leftover of an interrupted run
                 shutil.rmtree(final)
             os.rename(work, final)

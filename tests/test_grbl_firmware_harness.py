@@ -211,6 +211,47 @@ def test_a_link_that_stays_bad_garbles_every_report_until_cleared(client, stock)
     assert b"MPos:0.000" in client.line()
 
 
+#: every report GRBL 1.1h sends in Idle and Run with the stock $10=1 (MPos, no buffer state)
+REPORT = re.compile(r"^<(Idle|Run)\|MPos:(-?\d+\.\d{3}),-?\d+\.\d{3},-?\d+\.\d{3}\|FS:\d+,\d+"
+                    r"(\|WCO:-?\d+\.\d{3},-?\d+\.\d{3},-?\d+\.\d{3})?(\|Ov:\d+,\d+,\d+)?>$")
+
+
+def test_a_status_report_flood_mid_move_neither_stops_the_steppers_nor_garbles_a_report(exe, tmp_path):
+    """grbl-sim runs GRBL's main program and its interrupts in two threads. They shared one SREG: a '?' taken
+    by the serial interrupt while the main program was between cli() and its restore (system.c) wrote the
+    cleared I bit back for good, and the stepper interrupt never ran again (MPos frozen in Run, a feed hold
+    stuck in Hold:1). About one move in 70 froze with a '?' every 20 ms; this flood froze that build within
+    seconds (patch sreg-per-thread). Every report must also arrive whole: a ring buffer that published its
+    head before its byte sent stale characters (patch ring-buffer-order)."""
+    with GrblFirmware(tmp_path, exe=exe, rail_mm=400.0, x0_mm=10.0, settings={110: 1200, 120: 100}) as fw:
+        ser = serial.Serial(fw.port, 115200, timeout=0)
+        try:
+            ser.write(b"G91 G1 X40 F1200\n")  # 2.2 s at 20 mm/s
+            buf, reports, state, x = b"", 0, None, None
+            t0 = moved = time.monotonic()
+            while not (state == "Idle" and x == "40.000"):
+                ser.write(b"?" * 20)
+                time.sleep(0.001)
+                buf += ser.read(1 << 16)
+                *lines, buf = buf.split(b"\n")
+                now = time.monotonic()
+                for line in (raw.decode("latin-1").rstrip("\r") for raw in lines):
+                    if line == "ok":
+                        continue
+                    match = REPORT.match(line)
+                    assert match, f"a garbled report from the firmware: {line!r}"
+                    reports += 1
+                    if match.group(2) != x:
+                        moved = now
+                    state, x = match.group(1), match.group(2)
+                assert now - moved < 2.0, f"the steppers stopped: MPos X {x} for 2 s in {state}, {reports} reports"
+                assert now - t0 < 6.0, f"not done after 6 s: {state} at {x}"
+            assert reports > 500  # the flood reached GRBL (a report every ~1 ms)
+            assert fw.physical_x_mm() == pytest.approx(50.0)
+        finally:
+            ser.close()
+
+
 def test_a_killed_controller_vanishes_and_restarts_on_a_new_port_where_the_carriage_was(exe, tmp_path):
     with GrblFirmware(tmp_path, exe=exe, settings=FAST, x0_mm=100.0) as fw:
         c = Client(fw.port)
