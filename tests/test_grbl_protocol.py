@@ -20,6 +20,15 @@ from protocols import Runner, perpendicular
 from protocols.recording import Recording
 from rig.devices import open_devices
 
+def wait_until(condition, what: str, timeout_s: float = 20.0) -> None:
+    """Poll `condition()` until it holds; fail (not hang) if it never does."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.02)
+
+
 JOB = ["G21 G90", "G1 X10 F6000", "G1 X25.5", "G4 P0.1", "G91", "G1 X-5", "G90", "G0 X40"]
 
 
@@ -38,7 +47,7 @@ class Events:
     def read(self) -> list[str]:
         return [str(d[0]) for e, d in self.log if e == "on_read" and d]
 
-    def wait(self, test, timeout_s: float = 10.0) -> None:
+    def wait(self, test, timeout_s: float = 30.0) -> None:  # a deadline, not a sleep: generous under load
         with self.changed:
             assert self.changed.wait_for(lambda: test(self), timeout=timeout_s), [e for e, _ in self.log][-20:]
 
@@ -173,8 +182,11 @@ def test_overlong_line_gets_error_11_and_the_receive_buffer_holds_128_bytes():
         assert port.readline().strip() == b"error:11"
         # 20 ten-second moves: one runs, 15 fill the planner, the last 4 (40 bytes) wait unread in the buffer
         port.write(b"G91\n" + b"G1 X9 F60\n" * 20)
-        time.sleep(0.5)
-        assert port.read(4096).count(b"ok") == 17
+        got = b""
+        deadline = time.monotonic() + 10.0
+        while got.count(b"ok") < 17 and time.monotonic() < deadline:
+            got += port.read(4096)
+        assert got.count(b"ok") == 17, got  # G91 and 16 moves: the 16th is read once the first one runs
         port.write(b"?")
         report = port.readline().decode()
         assert "|Bf:0,88|" in report, report
@@ -205,8 +217,7 @@ def test_simulator_real_time_commands_check_mode_jogging_and_report_fields():
         assert term.status().startswith("<Alarm|WPos:")  # $10=0: work positions; homing on: Alarm at power-up
         term.send(b"$H\n", wait_s=0.05)
         assert term.send(b"?", wait_s=0.1) == []  # homing blocks the protocol loop: '?' goes unanswered
-        while sim.state == "Home":
-            time.sleep(0.05)
+        wait_until(lambda: sim.state != "Home", "homing to end")
         term.send(b"", wait_s=0.1)
         first = term.status()
         assert first.startswith("<Idle|WPos:-1.000,")  # stock pull-off: homing leaves MPos at -$27
@@ -220,15 +231,13 @@ def test_simulator_real_time_commands_check_mode_jogging_and_report_fields():
         assert float(term.status().split("WPos:")[1].split(",")[0]) == x_held  # stopped
         term.send(b"~", wait_s=0.1)
         assert term.status().startswith("<Run|")
-        while sim.state != "Idle":
-            time.sleep(0.05)
+        wait_until(lambda: sim.state == "Idle", "the move to end")
         assert sim.machine_mm(time.monotonic()) == pytest.approx(-100.0)
         # feed override: 0x91 x 5 = 150 % (capped at $110 = 3000 mm/min)
         term.send(bytes([0x92] * 5), wait_s=0.05)  # 50 %
         term.send(b"G53 G1 X-90 F3000\n", wait_s=0.2)
         assert "|FS:" in term.status()
-        while sim.state != "Idle":
-            time.sleep(0.05)
+        wait_until(lambda: sim.state == "Idle", "the move to end")
         assert any(f"Ov:50,100,100" in r for r in sim.replies) or sim.feed_override == 50
         # jog with soft limits: error:15, not an alarm; jog cancel stops it
         assert term.send(b"$J=G53 X50 F3000\n") == ["error:15"]
