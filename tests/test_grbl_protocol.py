@@ -74,8 +74,10 @@ def test_grbl_streamer_connects_reads_settings_and_streams_a_job():
             events.wait(lambda ev: sim.state == "Idle" and sim.machine_mm(time.monotonic()) == 40.0, timeout_s=10.0)
             assert not [d for e, d in events.log if e in ("on_error", "on_alarm")]
             assert sim.machine_mm(time.monotonic()) == pytest.approx(40.0, abs=1e-6)
+            # it parsed our status reports while the job ran, and after it (its own polling lags the job's end)
+            events.wait(lambda ev: any(e == "on_stateupdate" and d[0] == "Idle" for e, d in ev.log))
             states = {d[0] for e, d in events.log if e == "on_stateupdate"}
-            assert "Run" in states and "Idle" in states  # it parsed our status reports while the job ran
+            assert "Run" in states and "Idle" in states
         finally:
             sender.poll_stop()
             sender.disconnect()
