@@ -40,3 +40,26 @@ def pytest_xdist_auto_num_workers(config):
     import os
 
     return 2 * (os.cpu_count() or 1)
+
+
+@pytest.fixture(scope="session")
+def small_recording(tmp_path_factory) -> Path:
+    """The small recording the CLI tests read and never change: a perpendicular run of the fake camera, 32 px
+    wide, 8 frames a stop at 0.5, 1.0, 1.5 and 2.0 m, exposure 3300 us, gain 32. Made once for all the xdist
+    workers of a run (under a lock in the temp folder they share), not once a module."""
+    import fcntl
+
+    from simrig import record_perpendicular
+
+    root = tmp_path_factory.getbasetemp().parent  # one per pytest run, shared by its workers
+    path = root / "small-recording" / "four-stops.h5"
+    path.parent.mkdir(exist_ok=True)
+    with open(root / "small-recording.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not path.exists():
+            making = path.parent / "making" / "four-stops.h5"
+            making.parent.mkdir(exist_ok=True)
+            record_perpendicular(making, width=32, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0], exposure_us=3300.0,
+                                 gain=32.0)
+            making.rename(path)
+    return path

@@ -8,16 +8,13 @@ from pathlib import Path
 import pytest
 
 from rig.reports.writable import output_problem
-from simrig import record_perpendicular
 
 RIG = str(Path(sys.executable).parent / "rig")
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("outputs") / "small.h5"
-    record_perpendicular(path, width=32, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0], exposure_us=3300.0, gain=32.0)
-    return path
+@pytest.fixture
+def recording(small_recording) -> Path:
+    return small_recording
 
 
 @pytest.mark.parametrize("args,option", [

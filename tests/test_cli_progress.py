@@ -17,16 +17,13 @@ import pytest
 
 from rig.models.progress import WorkProgress
 from rig.reports.work_progress import WorkProgressLine
-from simrig import record_perpendicular
 
 RIG = str(Path(sys.executable).parent / "rig")
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("progress") / "small.h5"
-    record_perpendicular(path, width=32, frames=8, stops_m=[0.5, 1.0, 1.5, 2.0])
-    return path
+@pytest.fixture
+def recording(small_recording) -> Path:
+    return small_recording
 
 
 def run_with_stderr_on_a_terminal(args: list[str], columns: int = 100) -> tuple[int, str, str]:

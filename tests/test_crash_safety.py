@@ -89,6 +89,7 @@ def test_kills_at_random_instants(tmp_path):
     whole_s = time.monotonic() - t0
     assert code == 0
     rng = random.Random(14)
+    kills = 0
     for trial in range(8):
         out = tmp_path / f"r{trial}.h5"
         proc = subprocess.Popen([sys.executable, str(CHILD), str(out), "none", "0"], stdout=subprocess.PIPE, text=True)
@@ -98,7 +99,10 @@ def test_kills_at_random_instants(tmp_path):
         done = [line.split()[1] for line in stdout.splitlines() if line.startswith("done ")]
         if proc.returncode == 0:
             continue  # it finished first
+        assert proc.returncode == -signal.SIGKILL, proc.returncode
+        kills += 1
         check_after_kill(out, done, raw=False)
+    assert kills >= 6, f"only {kills} of 8 trials were killed before the run finished: the instants are too late"
 
 
 @pytest.mark.parametrize("point", ["after:copyfile", "before:commit", "after:commit"])
