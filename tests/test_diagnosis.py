@@ -19,8 +19,12 @@ from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN
 from rig.simulation.validation import run_trial
 
 SEED = 1000
-#: light_falloff (beyond noise in 9 trials of 10) and noisy_confidence (2.5-4 min a trial) are in the docs' table only
-SUITE = [s for s in ALL_SCENARIOS if s not in ("light_falloff", "noisy_confidence")]
+#: known shortfalls, run and required to fail until they are fixed (issue 30): the path names the right effects but
+#: the error stays beyond noise (light_falloff: within noise in 1 trial of 10, docs/models.md)
+SHORTFALLS = {"light_falloff": "read_noise + slant_range then stops beyond noise: sigma by radius (issue 30)"}
+#: noisy_confidence takes 2.5-4 min a trial: the docs' table (rig validate-diagnosis) runs it, the suite does not
+SUITE = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORTFALLS[s])) if s in SHORTFALLS else s
+         for s in ALL_SCENARIOS if s != "noisy_confidence"]
 
 
 @pytest.mark.parametrize("effect", SUITE)
