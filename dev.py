@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Set up and run rig from a fresh clone: `python3 dev.py demo` or `python3 dev.py test`.
+"""Set up and run rig from a fresh clone: `python3 dev.py demo` or `python3 dev.py test`
+(`python3 dev.py test --quick`: the inner loop, under a minute: no real-time, trial or slow tests).
 
 Creates .venv/ beside this file (once), installs rig into it (again whenever pyproject.toml
 changes), then runs the demo or the test suite. Needs only Python 3.11+.

@@ -33,6 +33,57 @@ def pytest_make_collect_report(collector):
     _fail_skips_in_ci(outcome.get_result())
 
 
+#: what `--quick` (`python3 dev.py test --quick`, the inner loop) leaves out: controllers served in real time (serial
+#: stages, the GRBL firmware), the blind diagnosis trials and crash trials, the TUI, and every test that took 2 s or
+#: more of wall time on a loaded 2-core machine (measured per test, 2026-11-25). The full command runs them all.
+SLOW_FILES = {
+    "test_serial_stages.py", "test_zaber_protocol.py", "test_grbl_protocol.py", "test_grbl_firmware.py",
+    "test_grbl_firmware_harness.py", "test_grbl_golden.py", "test_stage_runs.py",  # real time
+    "test_diagnosis.py", "test_crash_safety.py", "test_recovery.py", "test_grouping.py",  # trials
+    "test_tui.py", "test_tui_operator.py",  # the terminal UI
+    "test_cli_flags.py", "test_cli_outputs.py", "test_cli_progress.py", "test_disk_full.py", "test_effects_guide.py",
+    "test_fuzz_recordings.py", "test_readme.py", "test_undetermined.py",
+}
+SLOW_TESTS = {
+    "test_cli.py": {"test_console_script_is_installed_and_runs", "test_demo_small", "test_run_then_fit"},
+    "test_cli_json.py": {"test_diagnose", "test_fit_model_and_compare_share_the_fit_fields"},
+    "test_device_options.py": {"test_the_installed_command_exits_2_on_a_stage_typo"},
+    "test_fit_many.py": {"test_a_reader_that_stops_early_ends_it_quietly"},
+    "test_fuzz_inputs.py": {"test_experiment_files", "test_import_manifests", "test_serial_replies"},
+    "test_import.py": {"test_fit_compare_and_diagnose_work_on_an_import", "test_import_gives_the_live_run_statistics_and_fit"},
+    "test_models.py": {"test_noise_floor_recovered_and_lambda_back_to_three"},
+    "test_oak.py": {"test_importing_the_driver_needs_no_sdk"},
+    "test_paper_windows.py": {"test_cli_prints_one_table_and_conclusion_per_scenario",
+                              "test_shot_noise_alone_gives_the_model_lambda_in_every_window"},
+    "test_realsense.py": {"test_a_slow_reader_gets_every_frame_of_a_recording",
+                          "test_importing_the_driver_needs_no_sdk_and_using_it_says_what_to_install",
+                          "test_perpendicular_run_through_the_sdk_records_and_fits_like_the_fake_camera",
+                          "test_recording_made_by_the_sdk_plays_back_with_the_same_per_pixel_statistics"},
+    "test_reliability.py": {"test_a_second_writer_is_refused_with_who_holds_the_file", "test_sigterm_ends_a_run_like_ctrl_c"},
+    "test_rounding.py": {"test_shipped_table_is_what_the_sums_give"},
+    "test_user_effects.py": {"test_the_effects_flag_on_fit_and_compare"},
+}
+
+
+def pytest_addoption(parser):
+    parser.addoption("--quick", action="store_true",
+                     help="the inner loop: leave out real-time, trial, TUI and slow tests (tests/conftest.py, SLOW_*)")
+
+
+def is_slow(item) -> bool:
+    path = Path(str(item.fspath)).name
+    return path in SLOW_FILES or item.originalname in SLOW_TESTS.get(path, ())
+
+
+def pytest_collection_modifyitems(config, items):
+    if not config.getoption("--quick"):
+        return
+    slow = [item for item in items if is_slow(item)]
+    if slow:
+        config.hook.pytest_deselected(items=slow)
+        items[:] = [item for item in items if not is_slow(item)]
+
+
 def pytest_xdist_auto_num_workers(config):
     """`-n auto`: two workers a core. The serial-stage tests run GRBL and Zaber controllers in real time and
     mostly wait (82 s of wall time for 6 s of CPU in tests/test_grbl_protocol.py); with one worker a core a
