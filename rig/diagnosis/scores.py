@@ -30,7 +30,7 @@ from ..models import Model, ModelData, ModelFit
 from ..models.optimise import fit_data
 from ..models.data import stops_of
 from ..models.grouping import whole_stops
-from ..models.likelihood import gamma_constant_by_stop
+from ..models.likelihood import gamma_constant_by_stop, loglik
 from ..models.parallel import forked_map
 from ..models.result import chi2_sf
 from ..models.determinacy import LambdaStatus, lambda_status
@@ -150,7 +150,7 @@ def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
             train_d, test_d = d.select(~test), d.select(test)
         f = model.fit(train_d, start=start, errors=False, exact_loglik=False)
         pred = model.predict(f.values, test_d)
-        score = -test_d.loglik(pred.var_m2, pred.k4_m4, pred.fill), float(test_d.nu.sum())
+        score = -loglik(test_d, pred.var_m2, pred.k4_m4, pred.fill), float(test_d.nu.sum())
         # a part's nodes point back at its data (GroupedData.full), a cycle only the collector frees, and it
         # counts objects, not bytes: without this, every part's copies (about 350 MB on a full sweep) stayed
         del train_d, test_d, pred

@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from .composition import Component
+from .component import BaseModel
+from .composition import Model
 from .data import ModelData
 from .parameters import Param
 
 
-class Base(Component):
+class Base(BaseModel):
     """sigma_Z = k * Z^lambda (paper, eq. error_prop_*); lambda free or fixed."""
-
-    role = "base"
 
     def __init__(self, name: str, lam: float | None, doc: str):
         self.name = name  # type: ignore[misc]
@@ -25,6 +26,9 @@ class Base(Component):
 
     def shot(self, p: dict[str, float], d: ModelData) -> np.ndarray:
         return p["k"] ** 2 * d.z0_m ** (2 * p["lambda"])
+
+    def __add__(self, other: Any) -> Model:
+        return Model.of(self) + other
 
 
 power_law = Base("power_law", None, "the paper's model: k and lambda free")

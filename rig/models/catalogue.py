@@ -17,6 +17,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from .bases import BASES
+from .component import describe
 from .composition import Model
 from .effects import EFFECTS, Effect
 from .empirical import empirical, is_empirical
@@ -55,8 +56,8 @@ class Catalogue:
         names, sources = dict(self.effects), dict(self.sources)
         for e in effects:
             if e.name in names and names[e.name] is not e:
-                raise EffectFileError(f"effect {e.name} from {source} has the name of the {sources[e.name]} effect "
-                                      f"{e.name}; rename it")
+                raise EffectFileError(f"effect {e.name} from {source}, {describe(e)}, has the name of the "
+                                      f"{sources[e.name]} effect {e.name}, {describe(names[e.name])}; rename it")
             names[e.name], sources[e.name] = e, source
         return Catalogue(names, sources)
 

@@ -7,16 +7,18 @@
 A model predicts, for every pixel of every stop, the variance of its range samples (m^2) and
 their fourth cumulant (m^4, zero for a normal distribution); effects join at fixed stages
 (`rig.models.prediction`), and every model also includes what the file fixes
-(`rig.models.file_physics`).
+(`rig.models.file_physics`). What a model is made of is `rig.models.component`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .component import BaseModel, Component, Effect, describe
 from .data import ModelData
 from .file_physics import range_transform
 from .likelihood import model_loglik
@@ -25,50 +27,37 @@ from .parameters import Param
 from .prediction import EffectStage, Prediction
 
 if TYPE_CHECKING:
-    from .bases import Base
-    from .effects import Effect
     from .result import ModelFit
-
-
-class Component:
-    """Base models and effects: a name, parameters, and how they change the prediction.
-
-    role: "base" (the shot-noise power law a model starts from) or "effect" (what it adds).
-    """
-
-    name: ClassVar[str] = "component"
-    role: ClassVar[str] = "component"
-    params: ClassVar[tuple[Param, ...]] = ()
-
-    def __add__(self, other: "Component") -> "Model":
-        return Model.of(self) + other
-
-    def __repr__(self) -> str:
-        return self.name
 
 
 @dataclass(frozen=True)
 class Model:
     """A base model plus effects. Compose with `+`; fit with `.fit(data)`."""
 
-    base: Base
+    base: BaseModel
     effects: tuple[Effect, ...] = ()
 
     @classmethod
-    def of(cls, c: Component) -> "Model":
+    def of(cls, c: Component | Model) -> Model:
         if isinstance(c, Model):
             return c
-        if getattr(c, "role", None) == "base":
-            return cls(c)  # type: ignore[arg-type]
+        if isinstance(c, BaseModel):
+            return cls(c)
         raise TypeError(f"a model starts from a base model (power_law, passive or active), not {c!r}")
 
-    def __add__(self, other: Any) -> "Model":
-        if getattr(other, "role", None) == "base":
+    def __add__(self, other: Any) -> Model:
+        """This model and the effect `other`, at its stage. The same effect again changes nothing; another effect
+        of the same name is an error naming both."""
+        if isinstance(other, BaseModel):
             raise ValueError(f"{self.name} already has a base model; add effects, not {other.name}")
-        if getattr(other, "role", None) != "effect":
+        if not isinstance(other, Effect):
             raise TypeError(f"cannot add {other!r} to a model; add an effect such as noise_floor")
-        if other.name in (e.name for e in self.effects):
+        same = [e for e in self.effects if e.name == other.name]
+        if same and same[0] is other:
             return self
+        if same:
+            raise ValueError(f"{self.name} has an effect {other.name} already ({describe(same[0])}); "
+                             f"{describe(other)} has the same name: rename one of them")
         return Model(self.base, tuple(sorted((*self.effects, other), key=lambda e: e.stage)))
 
     @property
@@ -85,22 +74,24 @@ class Model:
     def free(self) -> list[tuple[str, Param]]:
         return [(n, p) for n, p in self.parameters() if p.vary]
 
-    def predict(self, values: dict[str, float], d: ModelData) -> Prediction:
+    def predict(self, values: Mapping[str, float], d: ModelData) -> Prediction:
+        """The prediction with parameter `values` (by qualified name); each effect gets its own (`Effect.own`)."""
+        own = [e.own(values) for e in self.effects]
         pred = Prediction(self.base.shot(values, d), np.ones(len(d)), np.zeros(len(d)))
-        for e in self.effects:
+        for e, p in zip(self.effects, own):
             if e.stage < EffectStage.DISPARITY:
-                e.apply(pred, values, d)
+                e.apply(pred, p, d)
         pred.var_m2 = pred.shot_m2 * pred.illum * (1.0 + pred.image_terms)
-        for e in self.effects:
+        for e, p in zip(self.effects, own):
             if EffectStage.DISPARITY <= e.stage <= EffectStage.CENSOR:
-                e.apply(pred, values, d)
+                e.apply(pred, p, d)
         range_transform(pred, d)
-        for e in self.effects:
+        for e, p in zip(self.effects, own):
             if e.stage > EffectStage.CENSOR:
-                e.apply(pred, values, d)
+                e.apply(pred, p, d)
         return pred
 
-    def loglik(self, values: dict[str, float], d: ModelData) -> float:
+    def loglik(self, values: Mapping[str, float], d: ModelData) -> float:
         """The composite log-likelihood (`rig.models.likelihood`), evaluated stop by stop."""
         return model_loglik(self, values, d)
 
@@ -111,7 +102,7 @@ class Model:
                 raise ValueError(why)
 
     def fit(self, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
-            hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True) -> "ModelFit":
+            hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True) -> ModelFit:
         """Maximum likelihood (rig.models.optimise); `errors=False` skips the standard errors; parameters
         in `hold` stay at their `start` values; `grouped=False` fits every pixel even where grouped nodes
         would do (rig.models.grouping)."""

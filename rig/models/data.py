@@ -27,10 +27,10 @@ import numpy as np
 
 from protocols.recording import CameraCalibration
 
-from . import shape_statistics
 from .covariates import StopSource, covariate_rows
 from .loading import BRIGHTNESS_WINDOW_PX, read_rows
 from .rounding import grid_offset
+from .shape_statistics import ShapeStatistics
 #: range windows of the kurtosis term and of the diagnosis (m)
 RANGE_BIN_M = 0.25
 #: rows of the chunks work over every pixel goes in (whole stops; about a full-resolution stop)
@@ -64,7 +64,7 @@ DERIVED = ("nu", "s2_m2", "neighbour_variance", "pixel_kurtosis", "z0_m", "range
            "excess_measured", "gamma_shape", "grid_offset")
 
 
-class ModelData:
+class ModelData(ShapeStatistics):
     """Pooled per-pixel statistics with the covariates models may need, and the camera's f*b and depth unit.
 
     z_m: pixel mean range, m; m2_m2: sum of (z_i - z_mean)^2 over the pixel's samples, m^2; m4_m4: sum of
@@ -216,32 +216,6 @@ class ModelData:
         """Sample variance M2 / (n - 1), m^2."""
         return self.m2_m2 / (self.n - 1.0)
 
-    # -- the distribution's shape, measured (rig.models.shape_statistics) ------------------------------
-    @cached_property
-    def neighbour_variance(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each pixel's neighbours' pooled variance and its degrees of freedom (`shape_statistics`)."""
-        return shape_statistics.neighbour_variance(self)
-
-    @cached_property
-    def pixel_kurtosis(self) -> np.ndarray:
-        """Each pixel's unbiased estimate of its samples' kurtosis (`shape_statistics`)."""
-        return shape_statistics.pixel_kurtosis(self)
-
-    @cached_property
-    def kurtosis_usable(self) -> np.ndarray:
-        """Pixels whose kurtosis estimate means something (`shape_statistics`)."""
-        return shape_statistics.kurtosis_usable(self)
-
-    @cached_property
-    def kurtosis_by_range(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(range windows, measured kurtosis, its standard error) for windows with enough usable pixels."""
-        return shape_statistics.kurtosis_by_range(self)
-
-    @cached_property
-    def excess_measured(self) -> np.ndarray:
-        """Each pixel's excess kurtosis as its range window measures it (0 where not measured)."""
-        return shape_statistics.excess_measured(self)
-
     @cached_property
     def range_group(self) -> np.ndarray:
         """Each pixel's range window: 0.25 m windows centred on multiples of 0.25 m (`range_bin_index`)."""
@@ -279,16 +253,18 @@ class ModelData:
 
     @cached_property
     def fill_by_stop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error)."""
-        from .likelihood import fill_by_stop
-
-        return fill_by_stop(self)
-
-    def loglik(self, var: np.ndarray, k4: np.ndarray | None, fill: np.ndarray | None = None) -> float:
-        """The composite log-likelihood of a prediction for every row (`rig.models.likelihood`)."""
-        from .likelihood import loglik
-
-        return loglik(self, var, k4, fill)
+        """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error): what the
+        likelihood's fill term compares the models' fill with (`rig.models.likelihood`)."""
+        present = np.bincount(self.stop) > 0  # stops are small non-negative integers: index them by a table, not a sort
+        idx = (np.cumsum(present) - 1)[self.stop]
+        stops = np.flatnonzero(present)
+        fill = self.fill
+        frames = self.n / np.maximum(fill, 1e-12)
+        count = np.bincount(idx, minlength=len(stops)).astype(float)
+        measured = np.bincount(idx, weights=fill, minlength=len(stops)) / count
+        binomial = np.sqrt(np.bincount(idx, weights=fill * (1 - fill) / frames, minlength=len(stops))) / count
+        one_sample = 1.0 / np.bincount(idx, weights=frames, minlength=len(stops))
+        return idx, measured, np.maximum(binomial, one_sample)
 
 
 def _lazy(name: str) -> property:

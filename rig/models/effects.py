@@ -1,58 +1,35 @@
-"""The physical effects the paper's model leaves out: one catalogue, `EFFECTS`.
+"""The physical effects the paper's model leaves out: the built-in catalogue, `EFFECTS`.
 
-Each effect says where it joins the prediction (`stage`, see `rig.models.prediction`), its
-parameters with units and bounds, the residual pattern it explains (`signature`) and what it
-means physically (`explanation`). They compose with a base model: `active + slant_range`.
+Each effect is one class here, registered by `@register` (`rig.models.component`): it says where
+it joins the prediction (`stage`, see `rig.models.prediction`), its parameters with units and
+bounds, the residual pattern it explains (`signature`) and what it means physically
+(`explanation`); `apply(pred, p, d)` gets its own parameters as `p` (`p.sigma_px`). Registered,
+it composes with a base model (`active + slant_range`; the instance is `rig.models.slant_range`),
+parses (`--model active+slant_range`) and is a candidate of the diagnosis. Nothing else to edit.
 """
 
 from __future__ import annotations
 
 import math
-from typing import ClassVar
 
 import numpy as np
 from numba import njit
 
-from .composition import Component
+from .component import EFFECTS, Effect, register, registered_by
 from .data import ModelData
 from .file_physics import MAX_DEPTH_UNITS, truncated_normal_moments
 from .parameters import Param
-from .prediction import EffectStage, Prediction
+from .prediction import EffectStage
 from .rounding import expected_sample_variance
 
-
-class Effect(Component):
-    """A physical effect the base model leaves out.
-
-    stage: where it joins (see `EffectStage`); needs: the covariates it uses; signature: the residual
-    pattern it explains, in plain words; explanation: what it means physically; groupable: its prediction is
-    smooth within a small tile of the image, so large data may be fitted on grouped nodes
-    (`rig.models.grouping`); False for what depends on each pixel's own place on the depth grid.
-    """
-
-    role = "effect"
-    groupable: ClassVar[bool] = True
-    stage: ClassVar[EffectStage]
-    needs: ClassVar[tuple[str, ...]] = ()
-    signature: ClassVar[str] = ""
-    explanation: ClassVar[str] = ""
-
-    def applicable(self, d: ModelData) -> str | None:
-        """None if the effect can be fitted to these data, else why not (one line)."""
-        return None
-
-    def apply(self, pred: Prediction, p: dict[str, float], d: ModelData) -> None:
-        raise NotImplementedError
-
-    def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
-        """Starting values (may depend on the data and the base prediction)."""
-        return {q.name: q.value for q in self.params}
+__all__ = ["EFFECTS", "Effect", "register"]
 
 
 def _need_projector(d: ModelData, what: str) -> str | None:
     return None if d.projector_on.any() else f"{what} needs the projector on (it changes the projected light)"
 
 
+@register
 class NoiseFloor(Effect):
     """Disparity noise independent of brightness (matcher / subpixel limit), added in quadrature.
 
@@ -66,9 +43,10 @@ class NoiseFloor(Effect):
     explanation = "a noise floor in disparity that does not depend on brightness (the matcher's subpixel limit)"
 
     def apply(self, pred, p, d):
-        pred.add(d.disparity_to_range(p["noise_floor.sigma_px"] ** 2))
+        pred.add(d.disparity_to_range(p.sigma_px ** 2))
 
 
+@register
 class ReadNoise(Effect):
     """Sensor read noise, independent of light, added to the photon noise of the image.
 
@@ -86,10 +64,11 @@ class ReadNoise(Effect):
         return _need_projector(d, "read_noise") or None
 
     def apply(self, pred, p, d):
-        term = p["read_noise.ratio_at_1m"] * d.z0_m**2 * pred.illum
+        term = p.ratio_at_1m * d.z0_m**2 * pred.illum
         pred.image_terms = pred.image_terms + np.where(d.projector_on, term, 0.0)
 
 
+@register
 class Ambient(Effect):
     """Ambient light adds photon noise but no pattern contrast: var_shot *= 1 + A / P.
 
@@ -113,6 +92,7 @@ class Ambient(Effect):
         pred.image_terms = pred.image_terms + r
 
 
+@register
 class SlantRange(Effect):
     """The projected light falls with the slant range r along each ray, not with Z.
 
@@ -132,6 +112,7 @@ class SlantRange(Effect):
         pred.illum = pred.illum * np.where(d.projector_on, 1.0 + d.rho2, 1.0)
 
 
+@register
 class Incidence(Effect):
     """A matte wall returns the projected light as cos(incidence): the shot variance is divided by it.
 
@@ -150,82 +131,7 @@ class Incidence(Effect):
         pred.illum = pred.illum * np.where(d.projector_on, 1.0 / np.clip(d.cos_inc, 0.05, 1.0), 1.0)
 
 
-class Drift(Effect):
-    """The mean depth wanders during a stop (warm-up): var += D, measured from the per-frame series. No free parameter."""
-
-    name = "drift"
-    stage = EffectStage.DRIFT
-    needs = ("drift_var_m2",)
-    signature = "the mean depth wanders during a stop: per-pixel variance exceeds the model by what the per-frame series moves"
-    explanation = "drift: the camera's depth scale changes during a stop (warm-up), adding the wander to every pixel's variance"
-
-    def applicable(self, d):
-        return None if (d.drift_var_m2 > 0).any() else "drift: the per-frame series shows no wander beyond noise"
-
-    def apply(self, pred, p, d):
-        pred.add(d.drift_var_m2)
-        pred.common_inv2 = pred.common_inv2 + d.drift_var_m2 / d.z_m**4
-
-
-class Censoring(Effect):
-    """The camera invalidates matches with a large matching error: the disparity error is truncated at +-threshold.
-
-    With c = threshold / sigma_d: var *= E[x^2 | |x| < c], fill = 2 Phi(c) - 1, and the
-    distribution becomes lighter-tailed (a truncated normal).
-    """
-
-    name = "censoring"
-    stage = EffectStage.CENSOR
-    params = (Param("threshold_px", 0.3, 0.005, 20.0, "px", "largest disparity error the camera keeps"),)
-    signature = "the error grows slower than k Z^lambda at long range while the fill rate falls"
-    explanation = "censoring: the camera discards the matches it is least sure of, so at long range the worst samples are missing"
-
-    def start(self, d, pred):
-        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z0_m**2
-        return {"threshold_px": float(2.0 * np.quantile(sigma_d, 0.95))}
-
-    def apply(self, pred, p, d):
-        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z0_m**2
-        c = p["censoring.threshold_px"] / sigma_d
-        kept, m2, m4 = truncated_normal_moments(c)
-        var = pred.var_m2
-        k4_old = pred.k4_m4 if pred.k4_m4 is not None else 0.0
-        pred.var_m2 = var * m2
-        pred.k4_m4 = var**2 * (m4 - 3 * m2**2) + k4_old * m2**2
-        pred.fill = kept
-        pred.censor = (c, var)  # the cut and the variance before it, for the exact range transform near the format's end
-
-
-class Quantization(Effect):
-    """Rounding to the depth unit q (and to the matcher's disparity step, if given).
-
-    Exactly, whatever the noise against q (`rig.models.rounding`): a pixel's rounded samples have
-    the variance and fourth moment of a rounded normal whose true mean sits where the pixel's
-    measured mean says it does between two depth levels: from 0 to q^2 / 4 when the noise is
-    below q, q^2 / 12 more than the noise (Sheppard's correction) when it is well above. A
-    disparity step s adds s^2 / 12 in disparity. The depth unit comes from the recording, so
-    there is no free parameter.
-    """
-
-    name = "quantization"
-    stage = EffectStage.QUANTIZE
-    by_grid_offset = True  # its prediction turns on each pixel's own place on the depth grid (rig.models.grouping)
-    params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
-    signature = "the error levels off at short range near the size of the depth unit"
-    explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "
-                   "adding q^2/12, or less for a noise below the unit")
-
-    def apply(self, pred, p, d):
-        q = d.depth_unit_m
-        step2 = d.disparity_to_range(p.get("quantization.step_px", 0.0) ** 2)
-        var_in = pred.var_m2 + step2 / 12
-        s = np.sqrt(var_in) / q
-        var_u, mu4_u = expected_sample_variance(s, d.grid_offset, d.n)
-        k4_rounding = (mu4_u - 3 * var_u**2) * q**4 - (step2**2) / 120
-        pred.var_m2 = var_u * q**2
-        pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding
-
-
+@register
 class Outliers(Effect):
     """Mismatches: a fraction of samples is uniform within +-width_px of the true disparity (Gaussian + uniform mixture).
 
@@ -247,7 +153,7 @@ class Outliers(Effect):
     explanation = "outliers: occasional mismatches far from the true disparity (the paper's kurtosis of 4-8)"
 
     def apply(self, pred, p, d):
-        f, w = p["outliers.fraction"], p["outliers.width_px"]
+        f, w = p.fraction, p.width_px
         z = np.asarray(d.z0_m, dtype=np.float64)
         var0 = np.broadcast_to(np.asarray(pred.var_m2, dtype=np.float64), z.shape)
         k40 = np.broadcast_to(np.asarray(0.0 if pred.k4_m4 is None else pred.k4_m4, dtype=np.float64), z.shape)
@@ -286,6 +192,88 @@ def _outlier_mixture(z, var0, k40, f_all, w, fb, deepest_m):
     return var_out, k4_out, kept_out
 
 
-EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    NoiseFloor(), ReadNoise(), Ambient(), SlantRange(), Incidence(), Outliers(), Quantization(), Drift(), Censoring())}
-noise_floor, read_noise, ambient, slant_range, incidence, outliers, quantization, drift, censoring = EFFECTS.values()
+@register
+class Quantization(Effect):
+    """Rounding to the depth unit q (and to the matcher's disparity step, if given).
+
+    Exactly, whatever the noise against q (`rig.models.rounding`): a pixel's rounded samples have
+    the variance and fourth moment of a rounded normal whose true mean sits where the pixel's
+    measured mean says it does between two depth levels: from 0 to q^2 / 4 when the noise is
+    below q, q^2 / 12 more than the noise (Sheppard's correction) when it is well above. A
+    disparity step s adds s^2 / 12 in disparity. The depth unit comes from the recording, so
+    there is no free parameter.
+    """
+
+    name = "quantization"
+    stage = EffectStage.QUANTIZE
+    by_grid_offset = True  # its prediction turns on each pixel's own place on the depth grid (rig.models.grouping)
+    params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
+    signature = "the error levels off at short range near the size of the depth unit"
+    explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "
+                   "adding q^2/12, or less for a noise below the unit")
+
+    def apply(self, pred, p, d):
+        q = d.depth_unit_m
+        step2 = d.disparity_to_range(p.step_px ** 2)
+        var_in = pred.var_m2 + step2 / 12
+        s = np.sqrt(var_in) / q
+        var_u, mu4_u = expected_sample_variance(s, d.grid_offset, d.n)
+        k4_rounding = (mu4_u - 3 * var_u**2) * q**4 - (step2**2) / 120
+        pred.var_m2 = var_u * q**2
+        pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding
+
+
+@register
+class Drift(Effect):
+    """The mean depth wanders during a stop (warm-up): var += D, measured from the per-frame series. No free parameter."""
+
+    name = "drift"
+    stage = EffectStage.DRIFT
+    needs = ("drift_var_m2",)
+    signature = "the mean depth wanders during a stop: per-pixel variance exceeds the model by what the per-frame series moves"
+    explanation = "drift: the camera's depth scale changes during a stop (warm-up), adding the wander to every pixel's variance"
+
+    def applicable(self, d):
+        return None if (d.drift_var_m2 > 0).any() else "drift: the per-frame series shows no wander beyond noise"
+
+    def apply(self, pred, p, d):
+        pred.add(d.drift_var_m2)
+        pred.common_inv2 = pred.common_inv2 + d.drift_var_m2 / d.z_m**4
+
+
+@register
+class Censoring(Effect):
+    """The camera invalidates matches with a large matching error: the disparity error is truncated at +-threshold.
+
+    With c = threshold / sigma_d: var *= E[x^2 | |x| < c], fill = 2 Phi(c) - 1, and the
+    distribution becomes lighter-tailed (a truncated normal).
+    """
+
+    name = "censoring"
+    stage = EffectStage.CENSOR
+    params = (Param("threshold_px", 0.3, 0.005, 20.0, "px", "largest disparity error the camera keeps"),)
+    signature = "the error grows slower than k Z^lambda at long range while the fill rate falls"
+    explanation = "censoring: the camera discards the matches it is least sure of, so at long range the worst samples are missing"
+
+    def start(self, d, pred):
+        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z0_m**2
+        return {"threshold_px": float(2.0 * np.quantile(sigma_d, 0.95))}
+
+    def apply(self, pred, p, d):
+        sigma_d = np.sqrt(pred.var_m2) * d.fb_px_m / d.z0_m**2
+        c = p.threshold_px / sigma_d
+        kept, m2, m4 = truncated_normal_moments(c)
+        var = pred.var_m2
+        k4_old = pred.k4_m4 if pred.k4_m4 is not None else 0.0
+        pred.var_m2 = var * m2
+        pred.k4_m4 = var**2 * (m4 - 3 * m2**2) + k4_old * m2**2
+        pred.fill = kept
+        pred.censor = (c, var)  # the cut and the variance before it, for the exact range transform near the format's end
+
+
+def __getattr__(name: str) -> Effect:
+    """The built-in effects' instances by name: `rig.models.effects.noise_floor` (one per registered class)."""
+    for e in registered_by(__name__):
+        if e.name == name:
+            return e
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -27,14 +27,13 @@ line, `active + empirical("radius")` in Python.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy.special import expit
 
-from .composition import Component
+from .component import Component, Effect
 from .data import ModelData
-from .effects import Effect
 from .likelihood import pixel_weights
 from .parameters import Param
 from .prediction import EffectStage, Prediction
@@ -156,10 +155,10 @@ class EmpiricalSigma(Effect):
                 else _spaced_knots(axis, len(self.params) + 1)
         return {q.name: 0.0 for q in self.params}
 
-    def log_multiplier(self, c: np.ndarray, p: dict[str, float]) -> np.ndarray:
+    def log_multiplier(self, c: np.ndarray, p: Any) -> np.ndarray:
         """ln(sigma multiplier) at covariate values c."""
         knots = self.knots if self.knots is not None else np.linspace(0, 1, len(self.params) + 1)
-        g = np.array([0.0] + [p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)]
+        g = np.array([0.0, *self.own(p)])[: len(knots)]
         x = self._axis(c)
         return np.where(np.isfinite(x), _smooth(self._axis(knots), g, np.nan_to_num(x)), 0.0)
 
@@ -181,10 +180,10 @@ class EmpiricalPosition(Effect):
     def applicable(self, d):
         return None if d.x_norm is not None else "empirical(position): the data carry no image coordinates"
 
-    def log_multiplier(self, x: np.ndarray, y: np.ndarray, p: dict[str, float]) -> np.ndarray:
-        n = self.name
-        return (p[f"{n}.a_x"] * x + p[f"{n}.a_y"] * y + p[f"{n}.a_xx"] * x * x + p[f"{n}.a_xy"] * x * y
-                + p[f"{n}.a_yy"] * y * y)
+    def log_multiplier(self, x: np.ndarray, y: np.ndarray, p: Any) -> np.ndarray:
+        """ln(sigma multiplier) at (x, y), `p` its parameters (`own`, or a model's values by qualified name)."""
+        p = self.own(p)
+        return p.a_x * x + p.a_y * y + p.a_xx * x * x + p.a_xy * x * y + p.a_yy * y * y
 
     def apply(self, pred, p, d):
         pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(d.x_norm, d.y_norm, p))
@@ -201,10 +200,10 @@ class _RangeShape(Effect):
             self.knots = _spaced_knots(np.log(getattr(d, "full", d).z0_m), len(self.params))
         return {q.name: q.value for q in self.params}
 
-    def curve(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
+    def curve(self, z_m: np.ndarray, p: Any) -> np.ndarray:
         lz = np.log(np.asarray(z_m, dtype=float))
         knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
-        return _smooth(knots, np.array([p[f"{self.name}.{q.name}"] for q in self.params])[: len(knots)], lz)
+        return _smooth(knots, np.array(self.own(p))[: len(knots)], lz)
 
 
 class EmpiricalTails(_RangeShape):
@@ -216,7 +215,7 @@ class EmpiricalTails(_RangeShape):
     signature = "the measured kurtosis differs from the model's"
     explanation = "empirical tails: the errors' distribution is not the model's shape"
 
-    def excess(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
+    def excess(self, z_m: np.ndarray, p: Any) -> np.ndarray:
         return np.maximum(self.curve(z_m, p), -1.5)
 
     def apply(self, pred, p, d):
@@ -300,7 +299,7 @@ class EmpiricalFill(_RangeShape):
     signature = "the fill rate differs from the model's"
     explanation = "empirical sample loss: the camera drops samples for a reason the model does not know"
 
-    def gain(self, z_m: np.ndarray, p: dict[str, float]) -> np.ndarray:
+    def gain(self, z_m: np.ndarray, p: Any) -> np.ndarray:
         return expit(self.curve(z_m, p))
 
     def apply(self, pred, p, d):

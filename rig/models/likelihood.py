@@ -32,7 +32,7 @@ from numba import njit
 from scipy.special import gammaln
 
 if TYPE_CHECKING:
-    from .composition import Model
+    from .component import ComposedModel
     from .data import ModelData
     from .prediction import Prediction
 
@@ -74,19 +74,6 @@ def gamma_constant_by_stop(d: ModelData) -> tuple[np.ndarray, np.ndarray]:
         present = np.bincount(d.stop) > 0
         cached = d.__dict__["gamma_constant_by_stop"] = (np.flatnonzero(present), sums[present])
     return cached
-
-
-def fill_by_stop(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error)."""
-    present = np.bincount(d.stop) > 0  # stops are small non-negative integers: index them by a table, not a sort
-    idx = (np.cumsum(present) - 1)[d.stop]
-    stops = np.flatnonzero(present)
-    frames = d.n / np.maximum(d.fill, 1e-12)
-    count = np.bincount(idx, minlength=len(stops)).astype(float)
-    measured = np.bincount(idx, weights=d.fill, minlength=len(stops)) / count
-    binomial = np.sqrt(np.bincount(idx, weights=d.fill * (1 - d.fill) / frames, minlength=len(stops))) / count
-    one_sample = 1.0 / np.bincount(idx, weights=frames, minlength=len(stops))
-    return idx, measured, np.maximum(binomial, one_sample)
 
 
 class LoglikSums:
@@ -194,7 +181,7 @@ def loglik(d: ModelData, var: np.ndarray, k4: np.ndarray | None, fill: np.ndarra
     return sums.total() + gamma_constant(d)
 
 
-def model_loglik(model: Model, values: dict[str, float], d: ModelData) -> float:
+def model_loglik(model: ComposedModel, values: dict[str, float], d: ModelData) -> float:
     """The composite log-likelihood of `model` with parameter `values`, evaluated stop by stop."""
     prepare(d)
     sums = LoglikSums(d)

@@ -18,7 +18,7 @@ from .parameters import Param
 from .result import ModelFit
 
 if TYPE_CHECKING:
-    from .composition import Model
+    from .component import ComposedModel
 
 #: the Nelder-Mead polish's budget of objective evaluations, per free parameter (plus one)
 NM_EVALUATIONS_PER_PARAMETER = 100
@@ -59,7 +59,7 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray, *, diagonal: bool = False) -> 
     return h
 
 
-def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
+def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
               hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True) -> ModelFit:
     """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao), unless
     `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later).
@@ -139,7 +139,7 @@ def fit_model(model: Model, d: ModelData, start: dict[str, float] | None = None,
                     covariance=cov, **summary)
 
 
-def fit_data(model: Model, d: ModelData) -> ModelData:
+def fit_data(model: ComposedModel, d: ModelData) -> ModelData:
     """What `model` is fitted on: the grouped nodes of `d` (made once, kept with `d`; apart by grid offset where the
     model rounds to the depth unit) when the data are large enough and every effect of the model is smooth within
     a tile (`Effect.groupable`); else `d` itself."""
@@ -174,7 +174,7 @@ def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:
     return replace(fit, errors=se, covariance=cov)
 
 
-def _standard_errors(model: Model, values: dict[str, float], d: ModelData,
+def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelData,
                      names: list[str]) -> tuple[dict[str, float], np.ndarray | None]:
     """Cramer-Rao standard errors from the inverse of the observed information (minus the Hessian), and the covariance.
 

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.special import chdtrc
 
 if TYPE_CHECKING:
-    from .composition import Model
+    from .component import ComposedModel
     from .data import ModelData
     from .prediction import Prediction
 
@@ -29,7 +29,7 @@ class ModelFit:
     covariance: of the free parameters, in the order of `model.free()` (None if not computed).
     """
 
-    model: Model
+    model: ComposedModel
     values: dict[str, float]
     errors: dict[str, float]
     loglik: float

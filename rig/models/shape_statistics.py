@@ -3,18 +3,20 @@ variance, and the kurtosis of each range window pooled from them.
 
 Per pixel the work is done within a stop (neighbours are pixels of the same stop), so it can go stop by
 stop; the range windows' pooled kurtosis is made of sums over all stops (`pooled_from_sums`).
+
+`ShapeStatistics` is the part of `rig.models.data.ModelData` that measures them: its properties,
+computed once and kept (cached), are the data's own (`d.pixel_kurtosis`); it reads the rows' moments
+and positions, which `ModelData` holds.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from functools import cached_property
+from typing import Any, Iterator
 
 import numpy as np
 
 from .group_sums import group_sums
-
-if TYPE_CHECKING:
-    from .data import ModelData
 
 #: side of the square of neighbouring pixels, centred on a pixel, whose pooled variance standardises its fourth moment
 KURTOSIS_WINDOW_PX = 7
@@ -22,60 +24,6 @@ KURTOSIS_WINDOW_PX = 7
 ROUNDING_SHARE = 0.02
 #: usable pixels a range window needs for its kurtosis to count
 MIN_KURTOSIS_PIXELS = 20
-
-
-def neighbour_variance(d: ModelData) -> tuple[np.ndarray, np.ndarray]:
-    """For each pixel, the variance pooled over the other pixels of the KURTOSIS_WINDOW_PX square centred
-    on it at the same stop, and its degrees of freedom (NaN where too few, or positions unknown). Centred,
-    so a variance changing linearly across the image is the pixel's own on average."""
-    if len(d) == 0 or not (np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()):
-        nan = np.full(len(d), np.nan)
-        return nan, nan
-    from scipy.ndimage import uniform_filter
-
-    u, v = d.u_px.astype(np.int64), d.v_px.astype(np.int64)
-    shape = (int(v.max()) + 1, int(u.max()) + 1)
-    m2_out, nu_out = np.empty(len(d)), np.empty(len(d))
-    size = KURTOSIS_WINDOW_PX * KURTOSIS_WINDOW_PX
-    slices = d.stop_slices()
-    groups = slices if slices is not None else [np.flatnonzero(d.stop == s) for s in np.unique(d.stop)]
-    nu = d.nu
-    for m in groups:
-        m2_img, nu_img = np.zeros(shape), np.zeros(shape)
-        vm, um = v[m], u[m]
-        m2_img[vm, um] = d.m2_m2[m]
-        nu_img[vm, um] = nu[m]
-        m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
-        nu_sum = uniform_filter(nu_img, KURTOSIS_WINDOW_PX, mode="constant") * size
-        m2_out[m] = m2_sum[vm, um] - d.m2_m2[m]
-        nu_out[m] = np.round(nu_sum[vm, um] - nu[m])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(nu_out > 4, m2_out / nu_out, np.nan), np.where(nu_out > 4, nu_out, np.nan)
-
-
-def pixel_kurtosis(d: ModelData) -> np.ndarray:
-    """Each pixel's unbiased estimate of its samples' kurtosis (3 for a normal distribution).
-
-    M4 is standardised by the variance v its neighbours measure (`neighbour_variance`), not by
-    a model's variance, which is what is in doubt. For samples about their own mean,
-    E[M4] / sigma^4 = (n - 1) / n^2 ((n^2 - 3n + 3) beta + 3 (2n - 3)); v's own noise is removed
-    by E[1 / v^2] = nu^2 / ((nu - 2)(nu - 4)) / sigma^4 (v ~ sigma^2 chi2_nu / nu). NaN where it
-    cannot be formed."""
-    v, nu_v = d.neighbour_variance
-    n = d.n
-    with np.errstate(invalid="ignore", divide="ignore"):
-        m4_over_sigma4 = d.m4_m4 / v**2 * (nu_v - 2) * (nu_v - 4) / nu_v**2
-        return (m4_over_sigma4 * n**2 / (n - 1) - 3 * (2 * n - 3)) / (n**2 - 3 * n + 3)
-
-
-def kurtosis_usable(d: ModelData) -> np.ndarray:
-    """Pixels whose kurtosis estimate means something: formed, and not dominated by rounding to the
-    depth unit (q^2 / 12 below ROUNDING_SHARE of the neighbours' variance), where the samples are
-    a few discrete levels whose spread depends on each pixel's own position between them."""
-    v, _ = d.neighbour_variance
-    q2 = d.depth_unit_m**2 if np.isfinite(d.depth_unit_m) else 0.0
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(d.pixel_kurtosis) & (q2 / 12 < ROUNDING_SHARE * v)
 
 
 def pooled_from_sums(count: float, sw: float, swb: float, sw2: float, sw2b: float, sw2b2: float) -> tuple[float, float]:
@@ -88,49 +36,127 @@ def pooled_from_sums(count: float, sw: float, swb: float, sw2: float, sw2b: floa
     return float(mean), float(np.sqrt(scatter / (count - 1) * count) / sw)
 
 
-def kurtosis_by_range(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(range windows, measured kurtosis, its standard error) for windows with MIN_KURTOSIS_PIXELS usable pixels.
-    Stop by stop: a stop's per-pixel estimates are made and dropped, only the windows' sums are kept."""
-    totals: dict[int, np.ndarray] = {}
-    for c in _stop_views(d):
-        use = c.kurtosis_usable
-        w, b = c.n[use], c.pixel_kurtosis[use]
-        keys, sums = group_sums(c.range_group[use], [1.0, w, w * b, w * w, w * w * b, w * w * b * b])
-        for key, row in zip(keys.tolist(), sums):
-            totals[key] = totals[key] + row if key in totals else row
-    windows, measured, se = [], [], []
-    for g in sorted(totals):
-        if totals[g][0] < MIN_KURTOSIS_PIXELS:
-            continue
-        k, e = pooled_from_sums(*totals[g])
-        if np.isfinite(k) and e > 0:
-            windows.append(g)
-            measured.append(k)
-            se.append(e)
-    return np.array(windows, dtype=np.int64), np.array(measured), np.array(se)
+class ShapeStatistics:
+    """The measured shape of each pixel's samples and of each range window's (see the module docstring); a base
+    of `ModelData`, which holds what these read."""
 
+    z_m: np.ndarray
+    m2_m2: np.ndarray
+    m4_m4: np.ndarray
+    n: np.ndarray
+    stop: np.ndarray
+    u_px: np.ndarray
+    v_px: np.ndarray
+    depth_unit_m: float
+    nu: np.ndarray
+    range_group: np.ndarray
 
-def excess_measured(d: ModelData) -> np.ndarray:
-    """Each pixel's excess kurtosis as its range window measures it (0 where not measured), for the
-    Gamma law's shape: the scatter of s2 across pixels comes from the data, not from a model."""
-    windows, measured, _ = d.kurtosis_by_range
-    excess = np.zeros(len(d))
-    if len(windows):
-        lo = int(min(windows.min(), d.range_group.min())) if len(d) else 0
-        table = np.zeros(int(max(windows.max(), d.range_group.max() if len(d) else 0)) - lo + 1)
-        table[windows - lo] = measured - 3.0
-        excess = table[d.range_group - lo]
-    return np.maximum(excess, -1.5)
+    def __len__(self) -> int:
+        raise NotImplementedError
 
+    def stop_slices(self) -> list[slice] | None:
+        raise NotImplementedError
 
-def _stop_views(d: ModelData):
-    """The stops of `d` as views that compute their own per-pixel statistics (the parent's, where it has them)."""
-    if all(name in d.__dict__ for name in ("pixel_kurtosis", "kurtosis_usable", "range_group")):
-        yield d
-        return
-    slices = d.stop_slices()
-    if slices is None or len(slices) <= 1:
-        yield d
-        return
-    for sl in slices:
-        yield d._taken(sl, derived=True)
+    def _taken(self, rows: Any, derived: bool) -> Any:
+        raise NotImplementedError
+
+    @cached_property
+    def neighbour_variance(self) -> tuple[np.ndarray, np.ndarray]:
+        """For each pixel, the variance pooled over the other pixels of the KURTOSIS_WINDOW_PX square centred
+        on it at the same stop, and its degrees of freedom (NaN where too few, or positions unknown). Centred,
+        so a variance changing linearly across the image is the pixel's own on average."""
+        if len(self) == 0 or not (np.isfinite(self.u_px).all() and np.isfinite(self.v_px).all()):
+            nan = np.full(len(self), np.nan)
+            return nan, nan
+        from scipy.ndimage import uniform_filter
+
+        u, v = self.u_px.astype(np.int64), self.v_px.astype(np.int64)
+        shape = (int(v.max()) + 1, int(u.max()) + 1)
+        m2_out, nu_out = np.empty(len(self)), np.empty(len(self))
+        size = KURTOSIS_WINDOW_PX * KURTOSIS_WINDOW_PX
+        slices = self.stop_slices()
+        groups = slices if slices is not None else [np.flatnonzero(self.stop == s) for s in np.unique(self.stop)]
+        nu = self.nu
+        for m in groups:
+            m2_img, nu_img = np.zeros(shape), np.zeros(shape)
+            vm, um = v[m], u[m]
+            m2_img[vm, um] = self.m2_m2[m]
+            nu_img[vm, um] = nu[m]
+            m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+            nu_sum = uniform_filter(nu_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+            m2_out[m] = m2_sum[vm, um] - self.m2_m2[m]
+            nu_out[m] = np.round(nu_sum[vm, um] - nu[m])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(nu_out > 4, m2_out / nu_out, np.nan), np.where(nu_out > 4, nu_out, np.nan)
+
+    @cached_property
+    def pixel_kurtosis(self) -> np.ndarray:
+        """Each pixel's unbiased estimate of its samples' kurtosis (3 for a normal distribution).
+
+        M4 is standardised by the variance v its neighbours measure (`neighbour_variance`), not by
+        a model's variance, which is what is in doubt. For samples about their own mean,
+        E[M4] / sigma^4 = (n - 1) / n^2 ((n^2 - 3n + 3) beta + 3 (2n - 3)); v's own noise is removed
+        by E[1 / v^2] = nu^2 / ((nu - 2)(nu - 4)) / sigma^4 (v ~ sigma^2 chi2_nu / nu). NaN where it
+        cannot be formed."""
+        v, nu_v = self.neighbour_variance
+        n = self.n
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m4_over_sigma4 = self.m4_m4 / v**2 * (nu_v - 2) * (nu_v - 4) / nu_v**2
+            return (m4_over_sigma4 * n**2 / (n - 1) - 3 * (2 * n - 3)) / (n**2 - 3 * n + 3)
+
+    @cached_property
+    def kurtosis_usable(self) -> np.ndarray:
+        """Pixels whose kurtosis estimate means something: formed, and not dominated by rounding to the
+        depth unit (q^2 / 12 below ROUNDING_SHARE of the neighbours' variance), where the samples are
+        a few discrete levels whose spread depends on each pixel's own position between them."""
+        v, _ = self.neighbour_variance
+        q2 = self.depth_unit_m**2 if np.isfinite(self.depth_unit_m) else 0.0
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(self.pixel_kurtosis) & (q2 / 12 < ROUNDING_SHARE * v)
+
+    @cached_property
+    def kurtosis_by_range(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(range windows, measured kurtosis, its standard error) for windows with MIN_KURTOSIS_PIXELS usable pixels.
+        Stop by stop: a stop's per-pixel estimates are made and dropped, only the windows' sums are kept."""
+        totals: dict[int, np.ndarray] = {}
+        for c in self._stop_views():
+            use = c.kurtosis_usable
+            w, b = c.n[use], c.pixel_kurtosis[use]
+            keys, sums = group_sums(c.range_group[use], [1.0, w, w * b, w * w, w * w * b, w * w * b * b])
+            for key, row in zip(keys.tolist(), sums):
+                totals[key] = totals[key] + row if key in totals else row
+        windows, measured, se = [], [], []
+        for g in sorted(totals):
+            if totals[g][0] < MIN_KURTOSIS_PIXELS:
+                continue
+            k, e = pooled_from_sums(*totals[g])
+            if np.isfinite(k) and e > 0:
+                windows.append(g)
+                measured.append(k)
+                se.append(e)
+        return np.array(windows, dtype=np.int64), np.array(measured), np.array(se)
+
+    @cached_property
+    def excess_measured(self) -> np.ndarray:
+        """Each pixel's excess kurtosis as its range window measures it (0 where not measured), for the
+        Gamma law's shape: the scatter of s2 across pixels comes from the data, not from a model."""
+        windows, measured, _ = self.kurtosis_by_range
+        excess = np.zeros(len(self))
+        if len(windows):
+            lo = int(min(windows.min(), self.range_group.min())) if len(self) else 0
+            table = np.zeros(int(max(windows.max(), self.range_group.max() if len(self) else 0)) - lo + 1)
+            table[windows - lo] = measured - 3.0
+            excess = table[self.range_group - lo]
+        return np.maximum(excess, -1.5)
+
+    def _stop_views(self) -> Iterator[Any]:
+        """The stops as views that compute their own per-pixel statistics (the parent's, where it has them)."""
+        if all(name in self.__dict__ for name in ("pixel_kurtosis", "kurtosis_usable", "range_group")):
+            yield self
+            return
+        slices = self.stop_slices()
+        if slices is None or len(slices) <= 1:
+            yield self
+            return
+        for sl in slices:
+            yield self._taken(sl, derived=True)

@@ -35,8 +35,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .component import EFFECTS, Effect, EffectFileError, add, forget, registered_by
 from .data import ModelData
-from .effects import Effect
 from .parameters import Param
 from .prediction import EffectStage, Prediction
 
@@ -47,10 +47,6 @@ STAGES = {
     "range": EffectStage.DISPARITY,
     "variance": EffectStage.EMPIRICAL,
 }
-
-
-class EffectFileError(ValueError):
-    """An effects file or a user effect is not usable; the message names the file or effect and the fix."""
 
 
 @dataclass(eq=False)
@@ -158,12 +154,9 @@ class UserEffect(Effect):
         self.source = source
         _check_definition(self)
 
-    def _values(self, p: dict[str, float]) -> dict[str, float]:
-        return {q.name: p[f"{self.name}.{q.name}"] for q in self.params}
-
-    def evaluate(self, d: ModelData, p: dict[str, float]) -> np.ndarray:
-        """The function's per-pixel output for parameter values `p` (qualified names)."""
-        out = np.asarray(self.fn(covariates(d), **self._values(p)), dtype=float)
+    def evaluate(self, d: ModelData, p: Any) -> np.ndarray:
+        """The function's per-pixel output for parameter values `p` (its own, `own`, or a model's by qualified name)."""
+        out = np.asarray(self.fn(covariates(d), **self.own(p)._asdict()), dtype=float)
         return np.broadcast_to(out, d.z_m.shape)
 
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
@@ -198,7 +191,9 @@ def effect(*, stage: str, params: Sequence[Param] = (), signature: str, name: st
     """Make an effect of a function of the covariates (see the module docstring)."""
 
     def wrap(fn: Callable[..., Any]) -> UserEffect:
-        return UserEffect(fn, stage=stage, params=params, signature=signature, name=name)
+        e = UserEffect(fn, stage=stage, params=params, signature=signature, name=name)
+        code = getattr(fn, "__code__", None)
+        return add(e, getattr(fn, "__module__", None) or "", f"{code.co_filename}:{code.co_firstlineno}" if code else "")
 
     return wrap
 
@@ -239,7 +234,8 @@ def _check_definition(e: UserEffect) -> None:
 
 
 def load_effects(path: str | Path) -> list[Effect]:
-    """The effects a Python file defines (module-level `Effect` objects, e.g. made with @effect)."""
+    """The effects a Python file defines: those it registers (functions with @effect, classes with @register), in
+    order, then any other module-level `Effect` objects. Running the file again replaces what it registered."""
     path = Path(path)
     if not path.is_file():
         raise EffectFileError(f"{path} does not exist; pass a Python file that defines effects with @effect "
@@ -249,6 +245,7 @@ def load_effects(path: str | Path) -> list[Effect]:
     if spec is None or spec.loader is None:
         raise EffectFileError(f"{path} is not a Python file; name it *.py")
     module = importlib.util.module_from_spec(spec)
+    forget(module_name)
     try:
         spec.loader.exec_module(module)
     except SyntaxError as e:
@@ -257,7 +254,9 @@ def load_effects(path: str | Path) -> list[Effect]:
         raise EffectFileError(f"{e} (in {path})") from None
     except Exception as e:
         raise EffectFileError(f"{path}: running it failed ({type(e).__name__}: {e}); fix the file") from None
-    found = [v for v in vars(module).values() if isinstance(v, Effect)]
+    found = registered_by(module_name)
+    theirs = [*found, *EFFECTS.values()]  # a built-in effect the file imports is not the file's
+    found += [v for v in vars(module).values() if isinstance(v, Effect) and not any(v is e for e in theirs)]
     if not found:
         raise EffectFileError(f"{path} defines no effect; decorate a function with @effect(stage=..., signature=...) "
                               "(see docs/effects.md)")
