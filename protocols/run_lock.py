@@ -53,9 +53,12 @@ class RunLock:
         self.held = False
 
     def acquire(self) -> "RunLock":
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         info = {"pid": os.getpid(), "host": socket.gethostname(),
                 "started_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise self.unwritable(e) from None
         for _ in range(2):
             try:
                 fd = os.open(self.file, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -67,11 +70,19 @@ class RunLock:
                         f"wait for that run to end or stop it (a stale lock is {self.file})") from None
                 self.file.unlink(missing_ok=True)  # stale: its process is gone
                 continue
+            except OSError as e:  # the folder cannot hold files: the output could not be written either
+                raise self.unwritable(e) from None
             with os.fdopen(fd, "w") as f:
                 json.dump(info, f)
             self.held = True
             return self
         raise RecordingError(f"could not take the lock {self.file}; remove it if no run is writing {self.path}")
+
+    def unwritable(self, e: OSError) -> RecordingError:
+        """The output cannot be written where it is (the lock beside it is the first file a run creates)."""
+        why = e.strerror or type(e).__name__
+        return RecordingError(f"cannot write {self.path}: no file can be created in {self.path.parent} ({why}); choose "
+                              f"an output in a folder you can write, e.g. -o {Path.home() / 'rig-output' / self.path.name}")
 
     def release(self) -> None:
         if self.held:
