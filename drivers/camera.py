@@ -18,18 +18,73 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from .errors import CameraError
+
+
+#: rig's gain unit, the same on every camera: GAIN_X1 is the sensor's unity (lowest) analog gain, so 16 = x1 and
+#: 32 = x2. It is the RealSense D4xx's own scale (16..248), which plans, experiment files and recordings have
+#: always used; a camera with another scale converts (its kind's `GainScale`: an OAK's ISO 100 = 16).
+GAIN_X1 = 16.0
+
+
+@dataclass(frozen=True)
+class GainScale:
+    """How a kind of camera's own gain setting maps to rig's unit (GAIN_X1 = 16 = x1).
+
+    native: the name of its own setting ("gain", "ISO"); per_x1: its own value at x1 (RealSense 16, OAK ISO 100);
+    native_range: what it accepts, in its own units.
+    """
+
+    native: str = "gain"
+    per_x1: float = GAIN_X1
+    native_range: tuple[float, float] = (GAIN_X1, 248.0)
+
+    def to_native(self, gain: float) -> float:
+        return gain / GAIN_X1 * self.per_x1
+
+    def from_native(self, value: float) -> float:
+        return value / self.per_x1 * GAIN_X1
+
+    @property
+    def range(self) -> tuple[float, float]:
+        """What it accepts, in rig's unit."""
+        return (self.from_native(self.native_range[0]), self.from_native(self.native_range[1]))
+
+    def check(self, gain: float, who: str) -> float:
+        """The native value for `gain` (rig's unit); a one-line CameraError if the camera cannot take it."""
+        lo, hi = self.range
+        if not lo - 1e-9 <= gain <= hi + 1e-9:
+            raise CameraError(f"{who}: gain {gain:g} is outside {lo:g}-{hi:g} (rig's unit: {GAIN_X1:g} = x1"
+                             f"{self.native_words()}); choose one inside")
+        return self.to_native(gain)
+
+    def native_words(self) -> str:
+        """'' when the camera's own scale is rig's; else e.g. ', = ISO 100 on this camera'."""
+        if self.native == "gain" and self.per_x1 == GAIN_X1:
+            return ""
+        return f", = {self.native} {self.per_x1:g} on this camera"
+
+    def text(self) -> str:
+        """'16-256 (16 = x1 = ISO 100; ISO 100-1600)', for `rig devices --options`."""
+        lo, hi = self.range
+        if not self.native_words():
+            return f"{lo:g}-{hi:g} ({GAIN_X1:g} = x1)"
+        a, b = self.native_range
+        return f"{lo:g}-{hi:g} ({GAIN_X1:g} = x1 = {self.native} {self.per_x1:g}; {self.native} {a:g}-{b:g})"
+
 
 @dataclass(frozen=True)
 class CameraSettings:
     """Sensor settings a run fixes for the whole experiment.
 
-    exposure_us: exposure time in microseconds; gain: the sensor's analog gain in the
-    device's own units (RealSense: 16..248, x1 = 16); projector_on: the IR pattern projector.
+    exposure_us: exposure time in microseconds; gain: the sensor's analog gain in rig's unit, the same on
+    every camera (GAIN_X1 = 16 = x1; a driver converts to its own, `GainScale`); projector_on: the IR pattern
+    projector. The defaults are the default plan's, and every camera kind takes them.
     """
 
     projector_on: bool = True
     exposure_us: float = 8500.0
-    gain: float = 16.0
+    gain: float = GAIN_X1
     auto_exposure: bool = False
 
     def to_dict(self) -> dict[str, Any]:
@@ -42,7 +97,9 @@ class CameraSettings:
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics of the depth image: focal lengths and principal point in px."""
+    """Pinhole intrinsics of the depth image: its size, focal lengths and principal point in px.
+
+    The one intrinsics type: `CameraCalibration` adds what turns depth counts into ranges."""
 
     width: int
     height: int
@@ -53,6 +110,19 @@ class Intrinsics:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class CameraCalibration(Intrinsics):
+    """The intrinsics with the stereo baseline (m) and the depth unit (m per count): what a recording stores in
+    its /camera attributes (docs/data-format.md) and the models read back."""
+
+    baseline_m: float = float("nan")
+    depth_scale_m: float = float("nan")
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
 
 
 @dataclass(frozen=True)
@@ -96,6 +166,10 @@ class CameraInfo:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         return d
+
+    def calibration(self) -> CameraCalibration:
+        i = self.intrinsics
+        return CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, self.baseline_m, self.depth_scale_m)
 
 
 class DepthCamera(abc.ABC):
@@ -145,3 +219,7 @@ class DepthCamera(abc.ABC):
     def read(self) -> dict[str, Any]:
         """The device's current state: the settings it reports."""
         return self.read_settings().to_dict()
+
+    def true_distance_m(self) -> float | None:
+        """The true camera-to-wall distance, which only a simulated camera knows (None: a real one does not)."""
+        return None

@@ -17,6 +17,10 @@ from typing import Any, Iterator
 import h5py
 import numpy as np
 
+# the calibration a recording stores is the one intrinsics type, with baseline and depth unit (re-exported here
+# for the readers of recordings)
+from drivers.camera import CameraCalibration  # noqa: F401
+
 from .stats import PixelStats
 
 FORMAT = "rig.recording"
@@ -78,18 +82,6 @@ class StopData:
     @property
     def projector_on(self) -> bool:
         return bool(self.settings_read_back.get("projector_on", self.settings_requested.get("projector_on", True)))
-
-
-@dataclass
-class CameraCalibration:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    baseline_m: float
-    depth_scale_m: float
 
 
 def jsonable(x: Any) -> Any:

@@ -27,8 +27,9 @@ from . import stop_journal as journal
 from .disk_space import FILE_OVERHEAD_BYTES, free_bytes, megabytes
 from .plan import Plan
 from .plan_check import plan_change, resume_problems
-from .recording import (FORMAT, FORMAT_VERSION, CameraCalibration, FrameSeries, check_format, jsonable,
-                        software_version, utc_now)
+from drivers.camera import CameraCalibration
+
+from .recording import FORMAT, FORMAT_VERSION, FrameSeries, check_format, jsonable, software_version, utc_now
 from .recording_errors import RecordingError
 from .run_lock import RunLock
 from .stats import PixelStats

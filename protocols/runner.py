@@ -26,7 +26,7 @@ from .plan import Capture, Configure, Home, Move, Plan, Settle
 from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
 from .plan_check import RigLimits, disk_need_bytes, plan_problems, stop_recipes
-from .recording import CameraCalibration, FrameSeries, RecordingError
+from .recording import FrameSeries, RecordingError
 from .recording_writer import RecordingWriter
 from .stop_journal import journal_dir
 from .stats import MeanImageAccumulator, PixelMomentAccumulator
@@ -143,7 +143,7 @@ class Runner:
             with writer, self.camera, self.stage:
                 info = self.camera.info()
                 i = info.intrinsics
-                calibration = CameraCalibration(i.width, i.height, i.fx, i.fy, i.cx, i.cy, info.baseline_m, info.depth_scale_m)
+                calibration = info.calibration()
                 camera, stage = self.camera.describe(), self.stage.describe()
                 done = writer.completed_stops()
                 try:
