@@ -1,15 +1,21 @@
-"""What is attached: RealSense and OAK cameras, and USB serial ports with the stage protocol they likely speak.
+"""What is attached: every kind's probe (drivers.registry), and the USB serial ports with the stage protocol
+they likely speak (the probe of the serial stage kinds).
 
-Each probe runs in its own thread with a deadline, so a driver that hangs cannot stall the listing.
+Each probe runs in its own thread with a deadline, so a driver that hangs cannot stall the listing, and with
+the process's standard output pointed at standard error, so an SDK's chatter never mixes into the listing
+(drivers.console).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 from typing import Callable
 
+from .console import sdk_chatter_to_stderr
 from .errors import DeviceError
+from .registry import Found, kinds
 
 LIST_DEADLINE_S = 4.0
 
@@ -49,27 +55,39 @@ def list_serial_ports() -> list[dict[str, str]]:
     return out
 
 
-def _realsense() -> list[dict[str, str]]:
-    from .realsense import list_realsense
+@dataclass(frozen=True)
+class ProbeSet:
+    """The probes to run, by name, and which of them list cameras (the others list stage connections)."""
 
-    return list_realsense()
-
-
-def _oak() -> list[dict[str, str]]:
-    from .oak import list_oak
-
-    return list_oak()
+    probes: dict[str, Callable[[], list[Found]]]
+    cameras: frozenset[str]
 
 
-PROBES: dict[str, Callable[[], list[dict[str, str]]]] = {"realsense": _realsense, "oak": _oak, "serial": list_serial_ports}
+def probes() -> ProbeSet:
+    """Every distinct probe of every installed kind (kinds that share one, as the serial stages do, run it once)."""
+    table: dict[str, Callable[[], list[Found]]] = {}
+    cameras: set[str] = set()
+    for what in ("camera", "stage"):
+        try:
+            found = kinds(what)
+        except DeviceError:
+            continue
+        for k in found.values():
+            if k.probe is not None:
+                table.setdefault(k.probe.name, k.probe)
+                if what == "camera":
+                    cameras.add(k.probe.name)
+    return ProbeSet(table, frozenset(cameras))
 
 
-def probe_all(deadline_s: float = LIST_DEADLINE_S) -> tuple[dict[str, list[dict[str, str]]], list[str]]:
+def probe_all(deadline_s: float = LIST_DEADLINE_S, which: ProbeSet | None = None
+              ) -> tuple[dict[str, list[Found]], list[str]]:
     """Run every probe at once; return what answered by the deadline, and one note per probe that did not."""
-    results: dict[str, list[dict[str, str]]] = {}
+    run_these = (which or probes()).probes
+    results: dict[str, list[Found]] = {}
     notes: dict[str, str] = {}
 
-    def run(name: str, probe: Callable[[], list[dict[str, str]]]) -> None:
+    def run(name: str, probe: Callable[[], list[Found]]) -> None:
         try:
             results[name] = probe()
         except DeviceError as e:
@@ -77,13 +95,14 @@ def probe_all(deadline_s: float = LIST_DEADLINE_S) -> tuple[dict[str, list[dict[
         except Exception as e:  # a driver's own failure must not hide the other probes
             notes[name] = f"{name}: the probe failed ({(str(e).splitlines() or [type(e).__name__])[0]})"
 
-    threads = [threading.Thread(target=run, args=(n, p), daemon=True) for n, p in PROBES.items()]
+    threads = [threading.Thread(target=run, args=(n, p), daemon=True) for n, p in run_these.items()]
     t0 = time.monotonic()
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(max(0.0, deadline_s - (time.monotonic() - t0)))
-    for name in PROBES:
+    with sdk_chatter_to_stderr():
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(max(0.0, deadline_s - (time.monotonic() - t0)))
+    for name in run_these:
         if name not in results and name not in notes:
             notes[name] = f"{name}: no answer within {deadline_s:g} s (the SDK may be searching the network); skipped"
-    return results, [notes[n] for n in PROBES if n in notes]
+    return results, [notes[n] for n in run_these if n in notes]

@@ -19,6 +19,12 @@ are read back from the left camera's frame (StereoDepth's syncedLeft output), pa
 the depth frame by sequence number. The OAK reports no per-frame projector state, so a
 frame's projector flag is the intensity last set (docs/hardware.md).
 
+Gain is given in rig's unit (16 = x1) like on every camera, and set as the sensors' ISO (100 = x1, up to
+1600: `OAK_GAIN`), so the default plan's 16 is ISO 100; the frames' ISO is reported back in rig's unit.
+depthai's logger writes to standard output; its import, device search and opening run with that pointed
+at standard error (drivers.console). `OAK` is the kind's entry (drivers.registry), named by the entry
+point `rig.cameras` in pyproject.toml.
+
 Importing this module never imports depthai; using the driver without it raises a one-line
 `CameraError` naming what to install.
 """
@@ -33,13 +39,15 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, Intrinsics
+from .camera import CameraInfo, CameraSettings, DepthCamera, Frame, FrameMetadata, GainScale, Intrinsics
+from .console import sdk_chatter_to_stderr
 from .errors import CameraError
 from .options import POSITIVE, Option, OptionTable, between
-from .registry import DeviceSpec
+from .registry import DeviceKind, DeviceSpec, Probe
 
 INSTALL = "pip install 'depthai>=3,<4'"
-ISO_RANGE = (100, 1600)
+#: the mono sensors' sensitivity: ISO 100 (x1) to 1600 (CameraControl.setManualExposure), as rig's gain 16-256
+OAK_GAIN = GainScale("ISO", 100.0, (100.0, 1600.0))
 EXPOSURE_RANGE_US = (20, 33000)
 #: frames to wait after a settings change for the frames to report them
 SETTLE_FRAMES = 30
@@ -64,7 +72,8 @@ def sdk(search_s: float = 3.0) -> Any:
     """Import depthai v3, with a short device search; or raise a one-line CameraError saying how to install it."""
     os.environ.setdefault("DEPTHAI_SEARCH_TIMEOUT", str(int(search_s * 1000)))
     try:
-        import depthai as dai
+        with sdk_chatter_to_stderr():
+            import depthai as dai
     except ImportError as e:
         text = (str(e).splitlines() or [""])[0]
         if getattr(e, "name", None) == "depthai":
@@ -83,7 +92,9 @@ def list_oak() -> list[dict[str, str]]:
     """OAK devices that answer a search (USB and network), without booting them. Takes about 0.5 s."""
     dai = sdk()
     out = []
-    for d in dai.Device.getAllAvailableDevices():
+    with sdk_chatter_to_stderr():
+        found = dai.Device.getAllAvailableDevices()
+    for d in found:
         out.append({"kind": "oak", "model": d.name or str(d.platform).split(".")[-1], "serial": d.getDeviceId(),
                     "firmware": "(booted on open)", "usb": str(d.protocol).split(".")[-1] + " " + str(d.state).split(".")[-1],
                     "string": f"oak:id={d.getDeviceId()}"})
@@ -123,11 +134,8 @@ def exposure_control(settings: CameraSettings) -> Any:
     lo, hi = EXPOSURE_RANGE_US
     if not lo <= settings.exposure_us <= hi:
         raise CameraError(f"oak: exposure {settings.exposure_us:g} us is outside {lo}-{hi} us; choose one inside")
-    lo, hi = ISO_RANGE
-    if not lo <= settings.gain <= hi:
-        raise CameraError(f"oak: gain (ISO) {settings.gain:g} is outside {lo}-{hi}; choose one inside "
-                          "(on an OAK, gain is the sensor's ISO: 100 = x1)")
-    ctrl.setManualExposure(int(round(settings.exposure_us)), int(round(settings.gain)))
+    iso = OAK_GAIN.check(settings.gain, "oak")
+    ctrl.setManualExposure(int(round(settings.exposure_us)), int(round(iso)))
     return ctrl
 
 
@@ -158,10 +166,10 @@ def stereo_settings(cfg: Any, preset: str) -> dict[str, Any]:
 
 
 def frame_metadata(msg: Any, *, projector_on: bool, auto_exposure: bool) -> FrameMetadata:
-    """Exposure (us) and sensitivity (ISO) that one ImgFrame reports."""
+    """Exposure (us) and sensitivity (ISO, as rig's gain: ISO 100 = 16) that one ImgFrame reports."""
     exposure = msg.getExposureTime()
     exposure_us = exposure.total_seconds() * 1e6 if isinstance(exposure, datetime.timedelta) else float(exposure)
-    return FrameMetadata(exposure_us=float(round(exposure_us, 3)), gain=float(msg.getSensitivity()),
+    return FrameMetadata(exposure_us=float(round(exposure_us, 3)), gain=OAK_GAIN.from_native(float(msg.getSensitivity())),
                          projector_on=projector_on, auto_exposure=auto_exposure)
 
 
@@ -225,7 +233,8 @@ class OakCamera(DepthCamera):
         """The DeviceInfo to connect to; a one-line CameraError within about a second if there is none."""
         dai = self._dai = sdk(self.search_s)
         t0 = time.monotonic()
-        found = list(dai.Device.getAllAvailableDevices())
+        with sdk_chatter_to_stderr():
+            found = list(dai.Device.getAllAvailableDevices())
         if not found:
             raise CameraError(f"oak: no OAK device found (searched USB and the network for {time.monotonic() - t0:.1f} s); "
                               "plug the OAK-D into a USB 3 port and check with 'rig devices', "
@@ -242,7 +251,8 @@ class OakCamera(DepthCamera):
         info = self.find()
         dai = self._dai
         try:
-            self._device = dai.Device(info)
+            with sdk_chatter_to_stderr():
+                self._device = dai.Device(info)
             self._build_pipeline(dai)
             self._info = self._read_info(dai)
         except CameraError:
@@ -400,3 +410,7 @@ class OakCamera(DepthCamera):
 def open_oak(spec: DeviceSpec, context: dict[str, Any]) -> DepthCamera:
     """Factory for `oak:...` (see drivers.registry)."""
     return OakCamera.from_spec(spec)
+
+
+OAK = DeviceKind("oak", "camera", open_oak, OAK_OPTIONS, Probe("oak", list_oak), summary="Luxonis OAK-D (depthai 3)",
+                 exposure_us=(float(EXPOSURE_RANGE_US[0]), float(EXPOSURE_RANGE_US[1])), gain=OAK_GAIN)

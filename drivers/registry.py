@@ -1,24 +1,30 @@
-"""Device strings and the kinds of camera and stage they name.
+"""Device strings, and the kinds of camera and stage they name: every kind is an entry point.
 
 Device strings look like URLs: `fake:`, `fake:width=424,height=240`, `none:`,
 `grbl:///dev/ttyUSB0?baud=115200`, `zaber:///dev/ttyUSB0`, `realsense:serial=123`.
 The part before the first colon picks the kind; the rest is either `//path?key=value&...`
 or `key=value,key=value`.
 
-A kind maps to a factory named as a `"module:function"` string (imported only when that
-kind is used), so a driver exists without importing anything above it. Built-in kinds are
-listed here; an installed package adds kinds through the entry-point groups `rig.cameras`
-and `rig.stages` (`[project.entry-points."rig.cameras"] mycam = "mypkg.camera:open_camera"`).
+A kind is described once, by a `DeviceKind` beside its driver: its factory, its device-string options
+(an `OptionTable`, drivers.options), its probe (what `rig devices` lists as attached), and for a camera the
+settings it takes and its gain unit (`GainScale`: gain is given in rig's unit, 16 = x1, on every camera, so the
+default plan runs on any of them). Kinds are found through the entry-point groups `rig.cameras` and
+`rig.stages`, rig's own (in its pyproject.toml, the simulator's included) exactly as an installed plugin's:
 
-A factory is called as `factory(spec, context)`: `spec` is the parsed `DeviceSpec`,
-`context` a dict shared by the camera and stage built together (the simulated devices keep
-their common world in it).
+    [project.entry-points."rig.cameras"]
+    mycam = "mypkg.camera:MYCAM"          # a DeviceKind; a bare factory function works too
 
-Each kind declares its options once, as an `OptionTable` (drivers.options), and reads them with
-`spec.take(TABLE)`, which refuses an unknown key (suggesting the nearest known one) or a bad value
-in one line. `option_table(what, kind)` finds a kind's table (for `rig devices --options KIND`): the
-built-in ones are named in CAMERA_OPTIONS and STAGE_OPTIONS, a plugin's factory may carry its own
-as the attribute `options`.
+Nothing here names a kind, and loading one imports only its module. After adding an entry point to an
+editable install, install it again (`pip install -e .`; `python3 dev.py` does when pyproject.toml changes).
+
+A factory is called as `factory(spec, context)`: `spec` is the parsed `DeviceSpec`, `context` a dict shared by
+the camera and stage built together. A factory may append to `context[ON_BUILT]` a function `hook(devices)`,
+called once both are built with an object whose `camera` and `stage` it may replace and whose `clock` it may set
+(a function that waits by advancing a simulated clock instead of sleeping): the simulated camera uses it to make
+its wall follow a real stage and to run a simulated rig on its own clock (fakes.devices).
+
+Each kind reads its options with `spec.take(TABLE)`, which refuses an unknown key (suggesting the nearest known
+one) or a bad value in one line.
 """
 
 from __future__ import annotations
@@ -29,35 +35,79 @@ from importlib.metadata import entry_points
 from typing import Any, Callable
 from urllib.parse import unquote_plus, urlsplit
 
+from .camera import GainScale
 from .errors import DeviceError
 from .options import OptionTable
 
-#: built-in camera kinds: kind -> "module:factory"
-CAMERA_KINDS = {
-    "fake": "fakes.devices:fake_camera",
-    "realsense": "drivers.realsense:open_realsense",
-    "oak": "drivers.oak:open_oak",
-}
-#: built-in stage kinds: kind -> "module:factory"
-STAGE_KINDS = {
-    "fake": "fakes.devices:fake_stage",
-    "none": "drivers.stage:no_stage",
-    "grbl": "drivers.serial.grbl:open_grbl",
-    "zaber": "drivers.serial.zaber:open_zaber",
-}
 ENTRY_POINT_GROUPS = {"camera": "rig.cameras", "stage": "rig.stages"}
-#: the option table of each built-in kind: kind -> "module:TABLE"
-CAMERA_OPTIONS = {
-    "fake": "fakes.camera:FAKE_CAMERA_OPTIONS",
-    "realsense": "drivers.realsense.camera:REALSENSE_OPTIONS",
-    "oak": "drivers.oak:OAK_OPTIONS",
-}
-STAGE_OPTIONS = {
-    "fake": "fakes.devices:FAKE_STAGE_OPTIONS",
-    "none": "drivers.stage:NO_STAGE_OPTIONS",
-    "grbl": "drivers.serial.rail:GRBL_OPTIONS",
-    "zaber": "drivers.serial.rail:ZABER_OPTIONS",
-}
+#: the key of `context` under which factories leave hooks for when both devices are built
+ON_BUILT = "on_built"
+#: one device a probe found: display fields (camera: kind, model, serial, firmware, usb; serial port: port,
+#: description, usb, serial, protocol, adapter) and "string", the device string that opens it
+Found = dict[str, str]
+
+
+@dataclass(frozen=True)
+class Probe:
+    """What is attached of some kinds: `run()` lists it (a `Found` per device) within a few seconds, or raises a
+    one-line DeviceError (e.g. its SDK is missing). Kinds that share a bus share a probe (the serial stages)."""
+
+    name: str
+    run: Callable[[], list[Found]] | str  # or "module:function", imported when it runs
+
+    def __call__(self) -> list[Found]:
+        return _resolve(self.run)()
+
+
+@dataclass(frozen=True)
+class DeviceKind:
+    """One kind of camera or stage, all rig needs to know of it. Fields given as "module:attr" are imported on use.
+
+    name: the kind in device strings (`realsense` in `realsense:serial=1`); what: "camera" or "stage".
+    factory: `factory(spec, context)` builds the device, unopened.
+    options: its device-string options (`rig devices --options KIND`); None if it declares none.
+    probe: what `rig devices` lists as attached; None if it cannot tell (a simulator).
+    summary: a few words for listings; simulated: a simulator, suggested when nothing is attached.
+    exposure_us: (cameras) the exposure range it takes, in us.
+    gain: (cameras) its own gain unit and range, mapped to rig's (16 = x1).
+    """
+
+    name: str
+    what: str
+    factory: Callable[..., Any] | str
+    options: OptionTable | str | None = None
+    probe: Probe | None = None
+    summary: str = ""
+    simulated: bool = False
+    exposure_us: tuple[float, float] = (1.0, 200_000.0)
+    gain: GainScale = field(default_factory=GainScale)
+
+    def make(self) -> Callable[..., Any]:
+        return _resolve(self.factory)
+
+    def option_table(self) -> OptionTable | None:
+        table = _resolve(self.options) if isinstance(self.options, str) else self.options
+        if table is None:  # a bare factory may carry its table as the attribute `options`
+            table = getattr(self.make(), "options", None)
+        return table if isinstance(table, OptionTable) else None
+
+    def settings_text(self) -> str:
+        """What settings a camera takes, in rig's units ('' for a stage)."""
+        if self.what != "camera":
+            return ""
+        lo, hi = self.exposure_us
+        return f"settings: exposure {lo:g}-{hi:g} us; gain {self.gain.text()}"
+
+
+def _resolve(ref: Any) -> Any:
+    """`ref` itself, or the object a "module:attr.attr" string names."""
+    if not isinstance(ref, str):
+        return ref
+    module_name, _, attr = ref.partition(":")
+    obj: Any = importlib.import_module(module_name)
+    for part in filter(None, attr.split(".")):
+        obj = getattr(obj, part)
+    return obj
 
 
 @dataclass
@@ -145,38 +195,49 @@ def _split_options(text: str) -> list[str]:
 Factory = Callable[[DeviceSpec, dict[str, Any]], Any]
 
 
-def kinds(what: str) -> dict[str, str]:
-    """Every kind of `what` ("camera" or "stage"): the built-in ones and those of installed plugins."""
-    table = dict(CAMERA_KINDS if what == "camera" else STAGE_KINDS)
-    for ep in entry_points(group=ENTRY_POINT_GROUPS[what]):
-        table.setdefault(ep.name, ep.value)
-    return table
+def kind_names(what: str) -> list[str]:
+    """The names of every kind of `what` ("camera" or "stage"), from the entry points; nothing is imported."""
+    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUPS[what])})
 
 
-def factory(what: str, kind: str, text: str = "") -> Factory:
-    """The factory for a kind; a one-line DeviceError for a kind nobody provides."""
-    table = kinds(what)
-    if kind not in table:
-        known = ", ".join(sorted(k + ":" for k in table))
+def kinds(what: str) -> dict[str, DeviceKind]:
+    """Every kind of `what`, loaded (each imports its own module only), by name."""
+    return {name: kind(what, name) for name in kind_names(what)}
+
+
+def kind(what: str, name: str, text: str = "") -> DeviceKind:
+    """The kind `name` of `what`; a one-line DeviceError for a kind nobody provides."""
+    found = [ep for ep in entry_points(group=ENTRY_POINT_GROUPS[what]) if ep.name == name]
+    if not found:
+        known = kind_names(what)
         where = f" in {text!r}" if text else ""
-        raise DeviceError(f"unknown {what} kind {kind!r}{where}; known kinds: {known}")
-    module_name, _, attr = table[kind].partition(":")
-    obj: Any = importlib.import_module(module_name)
-    for part in attr.split("."):
-        obj = getattr(obj, part)
-    return obj
+        listed = ", ".join(k + ":" for k in known) if known else (
+            "none (rig's own are entry points: reinstall rig, e.g. pip install -e .)")
+        raise DeviceError(f"unknown {what} kind {name!r}{where}; known kinds: {listed}")
+    ep = found[0]
+    try:
+        obj = ep.load()
+    except (ImportError, AttributeError) as e:
+        raise DeviceError(f"the {what} kind {name!r} cannot be loaded from {ep.value!r} ({e}); reinstall the package "
+                          "that provides it") from None
+    if isinstance(obj, DeviceKind):
+        if (obj.name, obj.what) != (name, what):
+            raise DeviceError(f"the entry point {name!r} of {ENTRY_POINT_GROUPS[what]} names the {obj.what} kind "
+                              f"{obj.name!r} ({ep.value}); give it the kind's own name")
+        return obj
+    if callable(obj):  # a bare factory: a kind with no probe
+        return DeviceKind(name, what, obj, summary=(obj.__doc__ or "").strip().split("\n")[0])
+    raise DeviceError(f"the {what} kind {name!r} ({ep.value}) is neither a DeviceKind nor a factory")
 
 
-def option_table(what: str, kind: str) -> OptionTable | None:
+def factory(what: str, name: str, text: str = "") -> Factory:
+    """The factory for a kind; a one-line DeviceError for a kind nobody provides."""
+    return kind(what, name, text).make()
+
+
+def option_table(what: str, name: str) -> OptionTable | None:
     """The option table of a kind of `what` ("camera" or "stage"); None for a plugin's kind that declares none."""
-    make = factory(what, kind)
-    if isinstance(getattr(make, "options", None), OptionTable):
-        return make.options  # type: ignore[attr-defined]
-    where = (CAMERA_OPTIONS if what == "camera" else STAGE_OPTIONS).get(kind)
-    if where is None:
-        return None
-    module_name, _, attr = where.partition(":")
-    return getattr(importlib.import_module(module_name), attr)
+    return kind(what, name).option_table()
 
 
 def build(what: str, text: str, context: dict[str, Any] | None = None) -> Any:

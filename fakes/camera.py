@@ -17,12 +17,11 @@ from drivers.errors import CameraError
 from drivers.options import AT_LEAST_0, Check, Option, OptionTable, below, between, one_of
 
 from .effects import Effect, parse_effects
+from .kinds import EXPOSURE_RANGE_US, GAIN
 from .render import depth_from_disparity, depth_from_noise, ir_from_uniform
 from .physics import NATIVE_FX_PX, NATIVE_WIDTH, FrameContext, SensorPhysics, StopField, base_truth, build_field
 from .world import FakeWorld
 
-EXPOSURE_RANGE_US = (1.0, 165000.0)
-GAIN_RANGE = (16.0, 248.0)
 #: digital numbers per photo-electron of the IR image at gain 16 (x1); the image is 10-bit (Y16)
 IR_DN_PER_E = 0.04
 IR_MAX_DN = 1023
@@ -186,9 +185,7 @@ class FakeCamera(DepthCamera):
         lo, hi = EXPOSURE_RANGE_US
         if not lo <= settings.exposure_us <= hi:
             raise CameraError(f"{self.name}: exposure {settings.exposure_us:g} us is outside {lo:.0f}-{hi:.0f} us; choose one inside")
-        lo, hi = GAIN_RANGE
-        if not lo <= settings.gain <= hi:
-            raise CameraError(f"{self.name}: gain {settings.gain} is outside {lo:.0f}-{hi:.0f}; choose one inside")
+        GAIN.check(settings.gain, self.name)
         self._settings = replace(settings, exposure_us=float(round(settings.exposure_us)), gain=float(round(settings.gain)))
         if self._room_lit is None:
             self._room_lit = not settings.projector_on
@@ -198,6 +195,9 @@ class FakeCamera(DepthCamera):
         return self._settings
 
     # -- truth, for tests and demos ----------------------------------------------------------
+    def true_distance_m(self) -> float:
+        return float(self.world.wall.distance_m)
+
     def base_truth(self, settings: CameraSettings | None = None) -> tuple[float, float]:
         """(k, lambda) of the base physics without effects, for `settings` (default: the current ones)."""
         s = settings or self._settings

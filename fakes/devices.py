@@ -1,10 +1,12 @@
-"""The simulated devices as device-string kinds (`fake:` camera, `fake:` stage), and how they share a world.
+"""The factories of the simulated devices (`fake:` camera, `fake:` stage; their kinds: fakes.kinds), and how they
+share a world.
 
 The fake camera always needs a wall to look at. The camera and stage built together share one
 `FakeWorld`, kept in the registry's context under "world" (`drivers.registry`): moving the
-fake stage moves the wall the fake camera sees. With a real stage (or a simulated controller on
-a serial port) the fake camera's wall follows the stage's measured position instead
-(`FollowingStage`).
+fake stage moves the wall the fake camera sees. Once both are built (the registry's ON_BUILT hook), a
+fake camera in front of a real stage (or a simulated controller on a serial port) makes its wall follow
+the stage's measured position (`FollowingStage`), and a fake camera with the fake stage or none runs the
+rig on the world's simulated clock: waiting advances it instead of sleeping.
 """
 
 from __future__ import annotations
@@ -14,8 +16,8 @@ from typing import Any
 from drivers.camera import DepthCamera
 from drivers.errors import StageError
 from drivers.options import AT_LEAST_0, POSITIVE, Option, OptionTable
-from drivers.registry import DeviceSpec
-from drivers.stage import Stage
+from drivers.registry import ON_BUILT, DeviceSpec
+from drivers.stage import NoStage, Stage
 
 from .camera import FakeCamera
 from .stage import FakeStage
@@ -41,7 +43,23 @@ FAKE_STAGE_OPTIONS = OptionTable("fake", "stage", (
 
 def fake_camera(spec: DeviceSpec, context: dict[str, Any]) -> DepthCamera:
     """Factory for `fake:...` cameras (options: `fakes.camera.FAKE_CAMERA_OPTIONS`)."""
-    return FakeCamera.from_options(shared_world(context), spec.options, spec.text, spec.path)
+    world = shared_world(context)
+    camera = FakeCamera.from_options(world, spec.options, spec.text, spec.path)
+    context.setdefault(ON_BUILT, []).append(lambda devices: wire_to_stage(devices, world))
+    return camera
+
+
+def wire_to_stage(devices: Any, world: FakeWorld) -> None:
+    """Once the fake camera's stage is built: a real stage moves the wall by its measured position; with the fake
+    stage or none, the rig runs on the world's clock."""
+    if not isinstance(devices.stage, FakeStage):
+        devices.stage = FollowingStage(devices.stage, world)
+    if isinstance(getattr(devices.stage, "inner", devices.stage), (FakeStage, NoStage)):
+        devices.clock = lambda seconds: _advance(world, seconds)
+
+
+def _advance(world: FakeWorld, seconds: float) -> None:
+    world.time_s += seconds
 
 
 def fake_stage(spec: DeviceSpec, context: dict[str, Any]) -> Stage:

@@ -50,7 +50,7 @@ def test_imgframes_become_a_frame_with_the_left_cameras_exposure_and_sensitivity
     assert frame.depth.dtype == np.uint16 and frame.depth.flags.writeable
     np.testing.assert_array_equal(frame.ir, left)
     assert frame.frame_number == 17 and frame.timestamp_ms == pytest.approx(1250.0)
-    assert (frame.metadata.exposure_us, frame.metadata.gain) == (8500.0, 200.0)
+    assert (frame.metadata.exposure_us, frame.metadata.gain) == (8500.0, 32.0)  # ISO 200 = x2 = rig's gain 32
     assert frame.metadata.projector_on and not frame.metadata.auto_exposure
     assert frame_from_messages(_img(depth, 17), _img(left, 17), projector_on=True, auto_exposure=False).ir is None
 
@@ -59,13 +59,13 @@ def test_frame_metadata_are_checked_against_the_request():
     from drivers.oak import frame_from_messages
 
     depth = np.full((8, 8), 1000, np.uint16)
-    asked = CameraSettings(projector_on=True, exposure_us=8500, gain=100)
+    asked = CameraSettings(projector_on=True, exposure_us=8500, gain=16)  # ISO 100
     good = frame_from_messages(_img(depth, 3), _img(depth.astype(np.uint8), 3, exposure_us=8500, iso=100),
                                projector_on=True, auto_exposure=False)
     assert settings_mismatch(asked, good.metadata) == []
     stale = frame_from_messages(_img(depth, 4), _img(depth.astype(np.uint8), 4, exposure_us=20000, iso=400),
                                 projector_on=True, auto_exposure=False)
-    assert settings_mismatch(asked, stale.metadata) == ["exposure 20000 us (asked 8500 us)", "gain 400 (asked 100)"]
+    assert settings_mismatch(asked, stale.metadata) == ["exposure 20000 us (asked 8500 us)", "gain 64 (asked 16)"]
 
 
 def test_wrong_messages_are_refused_in_one_line():
@@ -99,12 +99,12 @@ def test_calibration_from_a_handler_gives_metres_and_scaled_intrinsics():
 def test_exposure_control_and_stereo_settings_are_what_the_rig_records():
     from drivers.oak import apply_stereo_settings, exposure_control, stereo_settings
 
-    ctrl = exposure_control(CameraSettings(exposure_us=8500.4, gain=200))
+    ctrl = exposure_control(CameraSettings(exposure_us=8500.4, gain=32))  # rig's gain 32 = x2 = ISO 200
     assert ctrl.getExposureTime() == datetime.timedelta(microseconds=8500) and ctrl.getSensitivity() == 200
-    with pytest.raises(CameraError, match=r"gain \(ISO\) 16 is outside 100-1600"):
-        exposure_control(CameraSettings(gain=16))
+    with pytest.raises(CameraError, match=r"oak: gain 8 is outside 16-256 \(rig's unit: 16 = x1, = ISO 100 on this camera\)"):
+        exposure_control(CameraSettings(gain=8))
     with pytest.raises(CameraError, match=r"exposure 50000 us is outside 20-33000 us"):
-        exposure_control(CameraSettings(exposure_us=50000, gain=100))
+        exposure_control(CameraSettings(exposure_us=50000, gain=16))
     cfg = dai.StereoDepthConfig()
     apply_stereo_settings(cfg, confidence=180, subpixel=True, lr_check=True)
     s = stereo_settings(cfg, "ROBOTICS")

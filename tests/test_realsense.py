@@ -348,18 +348,30 @@ def test_depth_quality_figures_of_a_known_tilted_plane():
     assert empty.fill_rate == 0 and "too few pixels" in empty.summary()
 
 
+def _nothing_from(monkeypatch, *names):
+    """Make the probes `names` find nothing (the others run for real)."""
+    from drivers import listing
+
+    real = listing.probes
+
+    def probes():
+        got = real()
+        return listing.ProbeSet({n: ((lambda: []) if n in names else p) for n, p in got.probes.items()}, got.cameras)
+
+    monkeypatch.setattr(listing, "probes", probes)
+
+
 def test_rig_devices_lists_nothing_attached_in_one_plain_line_quickly(monkeypatch):
     import io
 
-    from drivers import listing
     from rig.cli import devices_main
 
-    monkeypatch.setitem(listing.PROBES, "realsense", lambda: [])
-    monkeypatch.setitem(listing.PROBES, "oak", lambda: [])
-    monkeypatch.setitem(listing.PROBES, "serial", lambda: [])
+    _nothing_from(monkeypatch, "realsense", "oak", "serial")
     out = io.StringIO()
     assert devices_main([], out=out) == 0
-    assert out.getvalue().strip().splitlines()[-1].startswith("nothing is attached: no RealSense or OAK camera")
+    last = out.getvalue().strip().splitlines()[-1]
+    assert last.startswith("nothing is attached: no camera (") and "RealSense" in last and "OAK" in last
+    assert last.endswith("simulate a rig with --camera fake: --stage fake:")
 
 
 def test_rig_devices_with_the_real_probes_answers_within_five_seconds():
@@ -381,7 +393,6 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
     from serial.tools import list_ports
     from serial.tools.list_ports_common import ListPortInfo
 
-    from drivers import listing
     from rig.cli import devices_main
 
     def port(dev, vid, pid, desc, manufacturer=None):
@@ -393,8 +404,7 @@ def test_rig_devices_names_serial_ports_and_their_likely_stage_protocol(monkeypa
                                                                           "Zaber Technologies Inc."),
              port("/dev/ttyUSB2", 0x1234, 0x5678, "Some adapter"), port("/dev/ttyS0", None, None, "n/a")]
     monkeypatch.setattr(list_ports, "comports", lambda: ports)
-    monkeypatch.setitem(listing.PROBES, "realsense", lambda: [])
-    monkeypatch.setitem(listing.PROBES, "oak", lambda: [])
+    _nothing_from(monkeypatch, "realsense", "oak")
     out = io.StringIO()
     devices_main([], out=out)
     lines = out.getvalue().splitlines()

@@ -113,12 +113,14 @@ def contrast_changed(on: ProjectorCheck, off: ProjectorCheck) -> bool:
 
 def run_check(camera: str, *, seconds: float, exposure_us: float, gain: float | None, truth_m: float | None,
               out: TextIO) -> int:
+    """gain: in rig's unit, the same on every camera (16 = x1, the default); truth_m: the true distance, which a
+    simulated camera knows itself."""
     devices = open_devices(camera, "none:")
     cam = devices.camera
     if gain is None:
-        gain = 100.0 if camera.split(":", 1)[0].strip().lower() == "oak" else 16.0
-    if truth_m is None and camera.split(":", 1)[0].strip().lower() == "fake":
-        truth_m = devices.world.wall.distance_m
+        gain = CameraSettings().gain
+    if truth_m is None:
+        truth_m = cam.true_distance_m()
     with cam:
         info = cam.info()
         fps = float(info.extra.get("fps", 30.0))

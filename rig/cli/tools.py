@@ -12,6 +12,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TextIO
 
+from drivers.camera import CameraSettings
+
 from .options import refuse_unwritable, verbosity
 from .usage import UsageError
 
@@ -22,12 +24,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="List attached cameras and serial ports, check a camera, or list a kind's "
                                    "device-string options.")
     p.add_argument("--options", metavar="KIND", nargs="?", const="",
-                   help="print the device-string options of a kind (e.g. grbl, zaber, fake, realsense, oak; "
-                        "every kind without KIND): defaults, units, accepted values")
+                   help="print the device-string options of a kind (of every installed kind without KIND): defaults, "
+                        "units, accepted values, and for a camera the settings it takes")
     p.add_argument("--check", metavar="CAMERA", help="capture with the projector on and off, e.g. realsense: or fake:")
     p.add_argument("--seconds", type=float, default=4.0, help="capture time for --check, split between on and off (default 4)")
-    p.add_argument("--exposure-us", type=float, default=8500.0, help="exposure for --check (default 8500 us)")
-    p.add_argument("--gain", type=float, help="gain for --check (default 16 on a RealSense, ISO 100 on an OAK)")
+    p.add_argument("--exposure-us", type=float, default=CameraSettings().exposure_us,
+                   help="exposure for --check (default 8500 us)")
+    p.add_argument("--gain", type=float, default=CameraSettings().gain,
+                   help="gain for --check, in rig's unit: 16 = x1 on every camera, converted to the camera's own "
+                        "scale (rig devices --options KIND shows it); default 16")
     p.add_argument("--distance", type=float, help="true camera-to-wall distance in m, for the range error")
     p.set_defaults(func=cmd_devices)
 
@@ -76,47 +81,62 @@ def register(sub: argparse._SubParsersAction) -> None:
 # -- rig devices ---------------------------------------------------------------------------------
 
 def print_listing(out: TextIO) -> int:
-    from drivers.listing import probe_all
+    """What every installed kind's probe finds: cameras, then the connections stages use (serial ports)."""
+    from drivers.listing import probe_all, probes
+    from drivers.registry import kinds
 
-    results, notes = probe_all()
-    cameras = results.get("realsense", []) + results.get("oak", [])
-    ports = results.get("serial", [])
+    which = probes()
+    results, notes = probe_all(which=which)
+    cameras = [c for name in which.probes if name in which.cameras for c in results.get(name, [])]
+    ports = [p for name in which.probes if name not in which.cameras for p in results.get(name, [])]
     print("cameras:", file=out)
     for c in cameras:
-        print(f"  {c['kind']:<9} {c['model']:<32} id {c['serial']:<20} firmware {c['firmware']:<16} USB {c['usb']:<10} "
-              f"-> --camera {c['string']}", file=out)
+        kind, model, serial, firmware, usb, string = (c.get(k) or "-" for k in (  # a plugin's probe may leave some out
+            "kind", "model", "serial", "firmware", "usb", "string"))
+        print(f"  {kind:<9} {model:<32} id {serial:<20} firmware {firmware:<16} USB {usb:<10} -> --camera {string}",
+              file=out)
     if not cameras:
         print("  none found", file=out)
     print("serial ports:", file=out)
     for p in ports:
-        adapter = f", {p['adapter']}" if p["adapter"] else ""
-        print(f"  {p['port']:<14} {p['description']:<30} USB {p['usb']} serial {p['serial'] or '-'}: likely "
-              f"{p['protocol']}{adapter} -> --stage {p['string']}", file=out)
+        adapter = f", {p['adapter']}" if p.get("adapter") else ""
+        print(f"  {p.get('port', '-'):<14} {p.get('description', ''):<30} USB {p.get('usb', '-')} serial "
+              f"{p.get('serial') or '-'}: likely {p.get('protocol', 'unknown')}{adapter} -> --stage {p.get('string', '-')}",
+              file=out)
     if not ports:
         print("  none found", file=out)
     for n in notes:
         print(f"note: {n}", file=out)
     if not cameras and not ports:
-        print("nothing is attached: no RealSense or OAK camera and no USB serial port found; "
-              "simulate a rig with --camera fake: --stage fake:", file=out)
+        camera_kinds, stage_kinds = kinds("camera"), kinds("stage")
+        looked = ", ".join(k.summary or k.name for k in camera_kinds.values() if k.probe is not None) or "none installed"
+        fake = " ".join(f"--{what} {k.name}:" for what, table in (("camera", camera_kinds), ("stage", stage_kinds))
+                        for k in list(table.values()) if k.simulated)
+        print(f"nothing is attached: no camera ({looked}) and no USB serial port found"
+              + (f"; simulate a rig with {fake}" if fake else ""), file=out)
     return 0
 
 
 def print_options(kind: str, out: TextIO) -> int:
-    """The option tables of `kind` (a camera kind, a stage kind, or both, as `fake`); of every kind if it is ''."""
-    from drivers.registry import kinds, option_table
+    """The option tables of `kind` (a camera kind, a stage kind, or both, as `fake`); of every kind if it is ''.
+    A camera's table is followed by the settings it takes, in rig's units."""
+    from drivers.registry import kind_names
+    from drivers.registry import kind as kind_entry
 
     kind = kind.strip().rstrip(":").lower()
-    wanted = [(what, k) for what in ("camera", "stage") for k in kinds(what) if k == kind or not kind]
+    wanted = [(what, k) for what in ("camera", "stage") for k in kind_names(what) if k == kind or not kind]
     if not wanted:
-        known = ", ".join(sorted(set(kinds("camera")) | set(kinds("stage"))))
+        known = ", ".join(sorted(set(kind_names("camera")) | set(kind_names("stage"))))
         raise UsageError(f"--options {kind!r}: no such device kind; known kinds: {known}")
     for i, (what, k) in enumerate(wanted):
-        table = option_table(what, k)
+        entry = kind_entry(what, k)
+        table = entry.option_table()
         if i:
             print(file=out)
         for line in table.lines() if table is not None else [f"{k} {what}: (its plugin declares no option table)"]:
             print(line, file=out)
+        if entry.settings_text():
+            print(f"  {entry.settings_text()}", file=out)
     return 0
 
 
