@@ -15,7 +15,7 @@ from typing import Callable
 
 from .console import sdk_chatter_to_stderr
 from .errors import DeviceError
-from .registry import Found, kinds
+from .registry import Found, kind, kind_names
 
 LIST_DEADLINE_S = 4.0
 
@@ -64,20 +64,29 @@ class ProbeSet:
 
 
 def probes() -> ProbeSet:
-    """Every distinct probe of every installed kind (kinds that share one, as the serial stages do, run it once)."""
+    """Every distinct probe of every installed kind (kinds that share one, as the serial stages do, run it once).
+    A kind that cannot be loaded (a broken plugin) becomes a probe that says so, in the listing's notes."""
     table: dict[str, Callable[[], list[Found]]] = {}
     cameras: set[str] = set()
     for what in ("camera", "stage"):
-        try:
-            found = kinds(what)
-        except DeviceError:
-            continue
-        for k in found.values():
+        for name in kind_names(what):
+            try:
+                k = kind(what, name)
+            except DeviceError as e:
+                table.setdefault(name, _refusal(e))
+                continue
             if k.probe is not None:
                 table.setdefault(k.probe.name, k.probe)
                 if what == "camera":
                     cameras.add(k.probe.name)
     return ProbeSet(table, frozenset(cameras))
+
+
+def _refusal(error: DeviceError) -> Callable[[], list[Found]]:
+    def probe() -> list[Found]:
+        raise error
+
+    return probe
 
 
 def probe_all(deadline_s: float = LIST_DEADLINE_S, which: ProbeSet | None = None

@@ -83,7 +83,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def print_listing(out: TextIO) -> int:
     """What every installed kind's probe finds: cameras, then the connections stages use (serial ports)."""
     from drivers.listing import probe_all, probes
-    from drivers.registry import kinds
 
     which = probes()
     results, notes = probe_all(which=which)
@@ -108,13 +107,26 @@ def print_listing(out: TextIO) -> int:
     for n in notes:
         print(f"note: {n}", file=out)
     if not cameras and not ports:
-        camera_kinds, stage_kinds = kinds("camera"), kinds("stage")
-        looked = ", ".join(k.summary or k.name for k in camera_kinds.values() if k.probe is not None) or "none installed"
-        fake = " ".join(f"--{what} {k.name}:" for what, table in (("camera", camera_kinds), ("stage", stage_kinds))
-                        for k in list(table.values()) if k.simulated)
+        camera_kinds, stage_kinds = _loadable("camera"), _loadable("stage")
+        looked = ", ".join(k.summary or k.name for k in camera_kinds if k.probe is not None) or "none installed"
+        fake = " ".join(f"--{k.what} {k.name}:" for k in camera_kinds + stage_kinds if k.simulated)
         print(f"nothing is attached: no camera ({looked}) and no USB serial port found"
               + (f"; simulate a rig with {fake}" if fake else ""), file=out)
     return 0
+
+
+def _loadable(what: str) -> list:
+    """The kinds of `what` that load (a broken plugin's is named in the listing's notes instead)."""
+    from drivers.errors import DeviceError
+    from drivers.registry import kind, kind_names
+
+    out = []
+    for name in kind_names(what):
+        try:
+            out.append(kind(what, name))
+        except DeviceError:
+            continue
+    return out
 
 
 def print_options(kind: str, out: TextIO) -> int:
