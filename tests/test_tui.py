@@ -5,7 +5,6 @@ Nothing here waits on wall-clock time: workers are awaited by polling a conditio
 
 from __future__ import annotations
 
-import asyncio
 import shlex
 import shutil
 import subprocess
@@ -26,6 +25,7 @@ from protocols.recording import Recording  # noqa: E402
 from rig.diagnosis import Headline  # noqa: E402
 from rig.simulation.scenarios import hidden_scenario, record_scenario  # noqa: E402
 from rig.tui.app import RigApp  # noqa: E402
+from tui_pilot import TIMEOUT_S, run, type_into, until  # noqa: E402
 from rig.tui.form import ExperimentSettings  # noqa: E402
 from rig.tui.live import RunState  # noqa: E402
 from rig.tui.results_service import BinRow, CandidateRow, FitRow, HistoryEntry, ResultsSession  # noqa: E402
@@ -40,22 +40,7 @@ except ImportError:
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = "fake:width=53,depth_unit_mm=0.05"
-SMALL = dict(stops_m=[0.5, 1.0, 1.5], frames=5, output="run.h5")
-TIMEOUT_S = 30.0
-
-
-def run(coro):
-    return asyncio.run(coro)
-
-
-async def until(pilot, condition, what: str, timeout_s: float = TIMEOUT_S) -> None:
-    """Let the app work until `condition()` holds; fail (not hang) if it never does."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await pilot.pause(0.05)
-    await pilot.pause()
+SMALL = dict(values=dict(stops_m=[0.5, 1.0, 1.5], frames_per_stop=5), output="run.h5")
 
 
 @pytest.fixture(scope="module")
@@ -63,12 +48,6 @@ def slant_recording(tmp_path_factory) -> Path:
     """A small simulated perpendicular run hiding the slant-range effect."""
     out = tmp_path_factory.mktemp("slant") / "slant.h5"
     return record_scenario(hidden_scenario(3, "slant_range", width=40, frames=12), out)
-
-
-async def type_into(pilot, field: str, text: str) -> None:
-    """Focus a field, clear it and type, as an operator would."""
-    pilot.app.query_one(f"#{field}", Input).focus()
-    await pilot.press("home", "ctrl+k", *text)
 
 
 # -- a full simulated run ------------------------------------------------------------------
@@ -266,14 +245,14 @@ def test_experiment_saved_is_what_rig_run_loads_and_loads_back(tmp_path, monkeyp
             await type_into(pilot, "toml-path", "e/t.toml")
             app.query_one("#protocol").value = "tilted"
             await pilot.pause()
-            assert not app.query_one("#row-stops").display and app.query_one("#row-tilt").display
-            await type_into(pilot, "tilt", "25")
+            assert not app.query_one("#row-stops").display and app.query_one("#row-tilt-deg").display
+            await type_into(pilot, "tilt-deg", "25")
             await type_into(pilot, "frames", "40")
             await type_into(pilot, "output", "o/t.h5")
             await pilot.press("ctrl+s")
             assert "saved" in app.experiment.status.text
             exp = load_experiment(tmp_path / "e/t.toml")  # what `rig run e/t.toml` reads
-            assert exp.plan.name == "tilted" and exp.plan.params["tilt_deg"] == 25 and exp.plan.params["frames"] == 40
+            assert exp.plan.name == "tilted" and exp.plan.params["tilt_deg"] == 25 and exp.plan.params["frames_per_stop"] == 40
             assert (exp.camera, exp.stage) == ("fake:width=53", "none:")
             assert exp.output.resolve() == tmp_path / "o" / "t.h5"  # the operator typed it relative to here
             await type_into(pilot, "frames", "1")  # refused by the protocol: the plan line says why
@@ -292,7 +271,7 @@ def test_experiment_saved_is_what_rig_run_loads_and_loads_back(tmp_path, monkeyp
 
 def test_example_experiment_file_loads(tmp_path):
     s, camera, stage = ExperimentSettings.load(ROOT / "examples" / "perpendicular-active.toml")
-    assert s.protocol == "perpendicular" and len(s.stops_m) == 11 and s.frames == 300
+    assert s.protocol == "perpendicular" and len(s.values["stops_m"]) == 11 and s.values["frames_per_stop"] == 300
     assert s.extra == {}  # settle_s = 1.0 is the default
     again = tmp_path / "again.toml"
     s.save(again, camera, stage)
@@ -448,13 +427,13 @@ def test_runs_an_experiment_in_a_real_terminal(tmp_path):
 
 
 def test_stops_accept_a_list_or_a_range():
-    from protocols.experiment_file import ExperimentFileError
-    from rig.tui.form import parse_stops
+    from protocols.perpendicular import PERPENDICULAR
 
-    assert parse_stops("0.5, 1.0,1.5") == [0.5, 1.0, 1.5]
-    assert parse_stops("0.5:3.0:0.25") == [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]
-    with pytest.raises(ExperimentFileError, match="START:STOP:STEP"):
-        parse_stops("0.5:abc")
+    stops = PERPENDICULAR.param("stops_m")  # the one parser: rig run --stops and the form's field
+    assert stops.parse("0.5, 1.0,1.5") == [0.5, 1.0, 1.5]
+    assert stops.parse("0.5:3.0:0.25") == [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]
+    with pytest.raises(ValueError, match="START:STOP:STEP"):
+        stops.parse("0.5:abc")
 
 
 def test_frame_tap_counts_dropped_and_refused_frames_and_passes_them_on():

@@ -5,7 +5,6 @@ input that ends the app (a crash exits non-zero, with the message). Real app, dr
 
 from __future__ import annotations
 
-import asyncio
 import math
 import os
 import subprocess
@@ -21,36 +20,12 @@ from textual.widgets import Checkbox, Input, Select  # noqa: E402
 
 from rig.simulation.scenarios import hidden_scenario, record_scenario  # noqa: E402
 from rig.tui.app import RigApp  # noqa: E402
+from tui_pilot import TIMEOUT_S, run, screen_text, type_into, until  # noqa: E402
 from rig.tui.fields import CheckedField  # noqa: E402
 from rig.tui.launch import run_app  # noqa: E402
 from rig.tui.widgets import EffectList, HeadlineChart  # noqa: E402
 
 CAMERA = "fake:width=53,depth_unit_mm=0.05"
-TIMEOUT_S = 60.0
-
-
-def run(coro):
-    return asyncio.run(coro)
-
-
-async def until(pilot, condition, what: str, timeout_s: float = TIMEOUT_S) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await pilot.pause(0.05)
-    await pilot.pause()
-
-
-def screen_text(app) -> str:
-    """What the terminal shows, as text (each line as the compositor draws it)."""
-    return "\n".join(strip.text for strip in app.screen._compositor.render_strips())
-
-
-async def type_into(pilot, field: str, text: str) -> None:
-    pilot.app.query_one(f"#{field}", Input).focus()
-    await pilot.press("home", "ctrl+k", *text)
-    await pilot.pause()
 
 
 def plan_line(app) -> str:
@@ -148,7 +123,7 @@ def test_a_file_name_typed_into_the_gain_field_is_refused_visibly(tmp_path, monk
             assert gain.refused and "refused" in plan_line(app)
             await type_into(pilot, "gain", "32")  # ...emptying it and typing again does
             assert not gain.has_class("-refused") and not plan_line(app).startswith("!")
-            assert app.experiment.checked_settings().gain == 32.0
+            assert app.experiment.checked_settings().values["gain"] == 32.0
 
     run(go())
 
@@ -319,7 +294,7 @@ def test_no_input_ends_the_app(tmp_path, monkeypatch):
         app = RigApp(CAMERA, "fake:", connect=False)
         async with app.run_test(size=(80, 24)) as pilot:
             await pilot.press("2")
-            for field in ("toml-path", "stops", "frames", "exposure", "gain", "output"):
+            for field in ("toml-path", "stops", "frames", "exposure-us", "gain", "output"):
                 for text in NASTY:
                     await paste_into(pilot, field, text)
                     if field in ("frames", "gain") and text == "abc":  # the paste is refused, visibly
@@ -328,8 +303,8 @@ def test_no_input_ends_the_app(tmp_path, monkeypatch):
                 await pilot.press("ctrl+s", "ctrl+l", "escape")
             app.query_one("#protocol").value = "tilted"
             for text in NASTY:
-                await paste_into(pilot, "tilt", text)
-                await paste_into(pilot, "distance", text)
+                await paste_into(pilot, "tilt-deg", text)
+                await paste_into(pilot, "distance-m", text)
             await pilot.press("ctrl+r", "escape", "4")
             for text in ("", str(tmp_path), "nothere.h5"):
                 await paste_into(pilot, "recording-path", text)
