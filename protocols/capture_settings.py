@@ -1,29 +1,47 @@
-"""How every stop of an experiment is captured: one frozen object both protocols share.
+"""How every stop of an experiment is captured: one frozen object every protocol shares.
 
 The protocols take these as flat keyword arguments (`perpendicular(projector_on=False,
 gain=32)`), as the experiment files' [parameters] tables and the recordings'
-`protocol_params` spell them; `CaptureSettings.from_options` collects and checks them.
+`protocol_params` spell them: each is a parameter of every protocol (`CAPTURE_PARAMS`, after the
+protocol's own), and `ProtocolSpec.plan` collects them into one `CaptureSettings`.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from drivers.camera import CameraSettings
 
 from .plan import Capture
-from .plan_values import flag, number, whole
+from .plan_values import ProtocolParam, between, whole_between
 
 #: the widest ranges any supported camera takes (RealSense D4xx: exposure 1-165000 us, gain 16-248;
 #: OAK-D: exposure up to 33000 us, ISO 100-1600); a device refuses what it cannot do when configured
 EXPOSURE_US = (1.0, 200_000.0)
 GAIN = (0.0, 10_000.0)
 
+#: the capture settings every protocol takes, as its parameters (after its own and frames_per_stop)
+CAPTURE_PARAMS = (
+    ProtocolParam("projector_on", bool, True, label="Projector", help="the IR pattern projector", option="--projector"),
+    ProtocolParam("exposure_us", float, 8500.0, "us", "Exposure [us]", "exposure time (auto exposure is always off)",
+                  between(*EXPOSURE_US, "us (auto exposure is always off: rig fixes the exposure so that sigma "
+                                        "depends on range only)")),
+    ProtocolParam("gain", float, 16.0, "", "Gain", "the sensor's analog gain in the device's units "
+                  "(RealSense: 16-248, x1 = 16)", between(*GAIN)),
+    ProtocolParam("settle_s", float, 1.0, "s", "Settle [s]", "seconds to wait after each move before capturing",
+                  between(0.0, 3600.0, "s"), form=False),
+    ProtocolParam("ir", bool, True, label="IR image", help="also average the left IR image", form=False),
+    ProtocolParam("ambient_frames", int, 0, "", "Ambient frames", "extra frames per stop with the projector "
+                  "off (the ambient light level)", whole_between(0, 10_000), form=False),
+    ProtocolParam("keep_raw", bool, False, label="Keep raw frames", help="store the raw frames too", form=False),
+)
+_DEFAULT = {p.name: p.default for p in CAPTURE_PARAMS}
+
 
 @dataclass(frozen=True)
 class CaptureSettings:
-    """Camera settings and capture options, fixed for the whole experiment.
+    """Camera settings and capture options, fixed for the whole experiment (each described in CAPTURE_PARAMS).
 
     projector_on: the IR pattern projector; exposure_us: exposure time in microseconds;
     gain: the sensor's analog gain in the device's units (RealSense: 16..248, x1 = 16);
@@ -32,37 +50,17 @@ class CaptureSettings:
     level); keep_raw: store the raw frames too.
     """
 
-    projector_on: bool = True
-    exposure_us: float = 8500.0
-    gain: float = 16.0
-    settle_s: float = 1.0
-    ir: bool = True
-    ambient_frames: int = 0
-    keep_raw: bool = False
+    projector_on: bool = _DEFAULT["projector_on"]
+    exposure_us: float = _DEFAULT["exposure_us"]
+    gain: float = _DEFAULT["gain"]
+    settle_s: float = _DEFAULT["settle_s"]
+    ir: bool = _DEFAULT["ir"]
+    ambient_frames: int = _DEFAULT["ambient_frames"]
+    keep_raw: bool = _DEFAULT["keep_raw"]
 
     def __post_init__(self) -> None:
-        w = "capture settings"
-        checked = dict(projector_on=flag(w, "projector_on", self.projector_on),
-                       exposure_us=number(w, "exposure_us", self.exposure_us, *EXPOSURE_US, "us (auto exposure is "
-                                          "always off: rig fixes the exposure so that sigma depends on range only)"),
-                       gain=number(w, "gain", self.gain, *GAIN),
-                       settle_s=number(w, "settle_s", self.settle_s, 0.0, 3600.0, "s"),
-                       ir=flag(w, "ir", self.ir), ambient_frames=whole(w, "ambient_frames", self.ambient_frames, 0, 10_000),
-                       keep_raw=flag(w, "keep_raw", self.keep_raw))
-        for k, v in checked.items():
-            object.__setattr__(self, k, v)
-
-    @classmethod
-    def names(cls) -> list[str]:
-        return [f.name for f in fields(cls)]
-
-    @classmethod
-    def from_options(cls, protocol: str, options: dict[str, Any]) -> "CaptureSettings":
-        """From flat keyword arguments; an unknown name is a TypeError naming the protocol and what it takes."""
-        unknown = [k for k in options if k not in cls.names()]
-        if unknown:
-            raise TypeError(f"{protocol}() got unexpected keyword argument(s) {unknown}; capture settings are {cls.names()}")
-        return cls(**options)
+        for p in CAPTURE_PARAMS:
+            object.__setattr__(self, p.name, p.checked("capture settings", getattr(self, p.name)))
 
     def camera(self) -> CameraSettings:
         """The camera settings to configure (auto-exposure always off)."""

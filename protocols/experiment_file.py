@@ -1,17 +1,19 @@
 """Experiments described in TOML files, run with `rig run FILE.toml`.
 
     [experiment]
-    protocol = "perpendicular"        # or "tilted"
+    protocol = "perpendicular"        # a protocol of the catalogue (protocols.catalogue)
     camera = "fake:width=424"         # device strings, as on the command line
-    stage = "fake:"
+    stage = "fake:"                   # default: the protocol's default_stage
     output = "perpendicular-active.h5"
 
-    [parameters]                      # the protocol's parameters
+    [parameters]                      # the protocol's parameters (its ProtocolSpec's, by name)
     stops_m = [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]
     frames_per_stop = 300
     projector_on = true
     exposure_us = 8500
     gain = 16
+
+A parameter's old name (`frames` for frames_per_stop) is still read; files are written with the current names.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .catalogue import PROTOCOLS, parameters
+from .catalogue import protocol_names, protocol_spec
 from .plan import Plan
+from .protocol_spec import ProtocolError
 
 
 class ExperimentFileError(ValueError):
@@ -40,15 +43,19 @@ class Experiment:
 
 
 def build_plan(protocol: str, params: dict[str, Any], where: str = "") -> Plan:
-    if protocol not in PROTOCOLS:
-        raise ExperimentFileError(f"{where}unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
-    fn = PROTOCOLS[protocol]
-    allowed = parameters(protocol)
+    """The protocol's plan for `params` (the others at their defaults); ExperimentFileError, one line, if the
+    protocol is unknown, a parameter is not one of its own or a value is refused."""
+    try:
+        spec = protocol_spec(protocol)
+        params = spec.current(params)
+    except (ProtocolError, TypeError) as e:
+        raise ExperimentFileError(f"{where}{e}") from None
+    allowed = spec.names()
     unknown = [k for k in params if k not in allowed]
     if unknown:
         raise ExperimentFileError(f"{where}{protocol} has no parameter(s) {unknown}; it takes {allowed}")
     try:
-        return fn(**params)
+        return spec.plan(**params)
     except (TypeError, ValueError) as e:
         raise ExperimentFileError(f"{where}{e}") from None
 
@@ -73,12 +80,16 @@ def load_experiment(path: str | Path) -> Experiment:
     if unknown:
         raise ExperimentFileError(f"{path}: [experiment] has unknown key(s) {sorted(unknown)}; it takes protocol, camera, stage, output")
     if "protocol" not in exp:
-        raise ExperimentFileError(f"{path}: [experiment] needs protocol = \"perpendicular\" or \"tilted\"")
+        choices = " or ".join(toml_value(n) for n in protocol_names())
+        raise ExperimentFileError(f"{path}: [experiment] needs protocol = {choices}")
+    if not isinstance(exp["protocol"], str):
+        raise ExperimentFileError(f"{path}: [experiment] protocol = {exp['protocol']!r} must be a name in quotes, "
+                                  f"one of {', '.join(protocol_names())}")
     plan = build_plan(exp["protocol"], data.get("parameters", {}), f"{path}: ")
     output = Path(exp["output"]) if "output" in exp else None
     if output is not None and not output.is_absolute():
         output = path.parent / output
-    return Experiment(plan, exp.get("camera", "fake:"), exp.get("stage", "fake:" if plan.name == "perpendicular" else "none:"), output, path)
+    return Experiment(plan, exp.get("camera", "fake:"), exp.get("stage", protocol_spec(plan.name).default_stage), output, path)
 
 
 def experiment_text(protocol: str, params: dict[str, Any], camera: str, stage: str, output: str | Path,
@@ -88,6 +99,7 @@ def experiment_text(protocol: str, params: dict[str, Any], camera: str, stage: s
     `output` is written relative to the file's folder (`where` is the file's path) when it can be.
     """
     build_plan(protocol, params)  # refuse to write a file `rig run` would refuse
+    params = protocol_spec(protocol).current(params)  # old names written as the current ones
     out = Path(output)
     if where is not None and not out.is_absolute():
         out = Path(os.path.relpath(out.resolve(), where.resolve().parent))

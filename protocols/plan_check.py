@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from . import stop_journal as journal
-from .catalogue import PROTOCOLS
+from .catalogue import PROTOCOLS, current_params
 from .disk_space import FILE_OVERHEAD_BYTES, RESERVE_BYTES, free_bytes, size_text, stop_bytes
 from .plan import Capture, Configure, Move, Plan, Settle
 from .plan_values import distance_m, frames
@@ -226,6 +226,7 @@ def resume_problems(protocol: str, old_params: dict[str, Any], plan: Plan, recor
     nothing is kept, so anything may change.
     """
     recorded = set(recorded)
+    old_params = current_params(old_params)  # a recording made before a parameter was renamed (frames -> frames_per_stop)
     if protocol != plan.name:
         return [f"protocol {protocol!r} in the file, {plan.name!r} now"]
     if not recorded:
@@ -253,6 +254,6 @@ def resume_problems(protocol: str, old_params: dict[str, Any], plan: Plan, recor
 
 def plan_change(old_params: dict[str, Any], new_params: dict[str, Any]) -> str:
     """The parameters a resumed run changes, in words ("" when none)."""
-    old, new = _plain(old_params), _plain(new_params)
+    old, new = _plain(current_params(old_params)), _plain(new_params)
     return "; ".join(f"{k} {old.get(k)!r} in the file, {new.get(k)!r} now"
                      for k in dict.fromkeys([*old, *new]) if old.get(k) != new.get(k))

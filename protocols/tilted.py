@@ -11,26 +11,34 @@ from __future__ import annotations
 from typing import Any, Iterator
 
 from .capture_settings import CaptureSettings
-from .plan_values import distance_m as check_distance, frames as check_frames, number
 from .plan import Configure, Home, Move, Plan, Settle, Step
+from .plan_values import ProtocolParam, between, distance_m as check_distance
+from .protocol_spec import ProtocolSpec
+
+def steps(settings: CaptureSettings, *, tilt_deg: float, distance_m: float, frames_per_stop: int) -> Iterator[Step]:
+    """Configure, place the camera at `distance_m` from the wall's centre, capture `frames_per_stop` frames."""
+    yield Home()
+    yield Configure(settings.camera())
+    yield Move(distance_m)
+    yield Settle(settings.settle_s)
+    yield settings.capture("tilted", frames_per_stop)
 
 
-def tilted(tilt_deg: float = 31.0, distance_m: float = 0.8, frames: int = 600, **capture: Any) -> Plan:
-    """Configure, place the camera at `distance_m` from the wall's centre, capture `frames` frames.
+TILTED = ProtocolSpec(
+    "tilted", steps,
+    params=(ProtocolParam("tilt_deg", float, 31.0, "deg", "Tilt [deg]", "the wall's angle to the image plane",
+                          between(0.0, 75.0, "degrees (the wall's angle to the image plane)")),
+            ProtocolParam("distance_m", float, 0.8, "m", "Distance [m]",
+                          "camera to the wall's centre, on the optical axis", check_distance)),
+    stops_param="distance_m", frames_per_stop=600, default_stage="none:",
+    wall={"tilt_deg": "tilt_deg", "distance_m": "distance_m"},
+    summary="the camera held still before a tilted wall: one stop spans a range of distances")
 
-    `capture`: the capture settings by name (`protocols.capture_settings.CaptureSettings`).
+
+def tilted(**params: Any) -> Plan:
+    """The plan (`TILTED`): one capture of `frames_per_stop` frames (default 600; `frames`, its old name, is
+    still read) with the camera `distance_m` (0.8) from a wall tilted by `tilt_deg` (31).
+
+    `params`: those and the capture settings by name (`protocols.capture_settings.CaptureSettings`).
     """
-    settings = CaptureSettings.from_options("tilted", capture)
-    frames = check_frames("tilted", "frames", frames)
-    tilt_deg = number("tilted", "tilt_deg", tilt_deg, 0.0, 75.0, "degrees (the wall's angle to the image plane)")
-    distance_m = check_distance("tilted", "distance_m", distance_m)
-    params = dict(tilt_deg=tilt_deg, distance_m=distance_m, frames=frames, **settings.to_params())
-
-    def steps() -> Iterator[Step]:
-        yield Home()
-        yield Configure(settings.camera())
-        yield Move(distance_m)
-        yield Settle(settings.settle_s)
-        yield settings.capture("tilted", frames)
-
-    return Plan("tilted", params, steps, stops_param="distance_m")
+    return TILTED.plan(**params)

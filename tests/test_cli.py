@@ -67,10 +67,10 @@ def test_bad_input_gives_one_line_error(tmp_path, capsys, args, message):
 
 def test_experiment_file_errors_name_the_key(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text('[experiment]\nprotocol = "perpendicular"\n[parameters]\nframes = 3\n')
+    bad.write_text('[experiment]\nprotocol = "perpendicular"\n[parameters]\nframe = 3\n')
     assert main(["run", str(bad), "-o", str(tmp_path / "y.h5")]) == 2
     err = capsys.readouterr().err
-    assert "perpendicular has no parameter(s) ['frames']" in err
+    assert "perpendicular has no parameter(s) ['frame']" in err
 
 
 def test_demo_small(tmp_path, capsys):

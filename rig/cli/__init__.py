@@ -78,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         return run_command(argv)
     except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError, FolderImportError, EffectFileError) as e:
         print(f"rig: error: {e}", file=sys.stderr)
-        return 2
+        # the runner turns Ctrl-C into a RunError saying what was saved: still an interruption (130)
+        return 130 if isinstance(e.__context__, KeyboardInterrupt) else 2
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
         return 130

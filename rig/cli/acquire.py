@@ -22,19 +22,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=1)
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("run", help="run an experiment (TOML file or options) and record it")
+    p = sub.add_parser("run", help="run an experiment (TOML file or options) and record it",
+                       description="Run an experiment and record it: an experiment file (TOML), or --protocol and "
+                                   "its parameters as options (every protocol of the catalogue, protocols/catalogue.py).")
     p.add_argument("experiment", nargs="?", help="experiment file (TOML); or give --protocol and options")
-    p.add_argument("--protocol", choices=["perpendicular", "tilted"], help="protocol when no file is given")
+    p.add_argument("--protocol", choices=protocol_names(), help="protocol when no file is given")
     p.add_argument("--camera", help="camera device string (default fake:)")
-    p.add_argument("--stage", help="stage device string (default fake: for perpendicular, none: for tilted)")
+    p.add_argument("--stage", help="stage device string (default: the protocol's, fake: for a moving stage)")
     p.add_argument("-o", "--output", help="recording to write (.h5)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted recording")
-    p.add_argument("--frames", type=int, help="frames per stop")
-    p.add_argument("--projector", choices=["on", "off"], help="IR projector")
-    p.add_argument("--exposure-us", type=float)
-    p.add_argument("--gain", type=float)
-    p.add_argument("--stops", help="comma-separated distances in m (perpendicular)")
-    p.add_argument("--tilt-deg", type=float, help="wall tilt (tilted)")
+    add_protocol_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("simulate", help="record a simulated experiment with a hidden effect (answer in OUT.answer.json)")
@@ -72,47 +69,87 @@ def cmd_demo(args: argparse.Namespace) -> int:
                     seed=args.seed, depth_unit_mm=args.depth_unit_mm, verbosity=verbosity(args))
 
 
+#: where rig run keeps a protocol parameter's option (its value as typed) in the parsed arguments
+OPTION_DEST = "protocol parameter "
+
+
+def add_protocol_options(p: argparse.ArgumentParser) -> None:
+    """One option for each parameter name of the catalogue, saying which protocols take it and their defaults."""
+    from protocols.catalogue import catalogue_params
+
+    group = p.add_argument_group("protocol parameters", "override the experiment file's or the protocol's defaults; "
+                                 "lists are 0.5,1.0,1.5 or a range START:STOP:STEP, e.g. 0.5:3.0:0.25")
+    for name, uses in catalogue_params().items():
+        param = uses[0][1]
+        defaults = {spec.name: q.text(q.default) for spec, q in uses}
+        default = next(iter(defaults.values())) if len(set(defaults.values())) == 1 else \
+            ", ".join(f"{v} ({k})" for k, v in defaults.items())
+        takers = "every protocol" if len(uses) == len(protocol_names()) else ", ".join(defaults)
+        unit = f", {param.unit}" if param.unit and param.type is not bool else ""
+        kw: dict[str, Any] = {"choices": ["on", "off"]} if param.type is bool else \
+            {"metavar": {list: "LIST", int: "N"}.get(param.type, "X")}
+        try:
+            group.add_argument(param.cli_option, dest=OPTION_DEST + name,
+                               help=f"{param.help}{unit} [{name}; {takers}; default {default}]", **kw)
+        except argparse.ArgumentError:
+            raise UsageError(f"the protocol parameter {name} ({', '.join(s.name for s, _ in uses)}) has the option "
+                             f"{param.cli_option}, which is rig run's own; give the parameter another option") from None
+
+
+def protocol_names() -> list[str]:
+    from protocols.catalogue import protocol_names as names
+
+    return names()
+
+
+def protocol_options(args: argparse.Namespace, spec: Any) -> dict[str, Any]:
+    """The protocol parameters given as options, read by `spec`'s types; UsageError for an option the protocol
+    does not take or a value that is not what its parameter takes."""
+    given = {k[len(OPTION_DEST):]: v for k, v in vars(args).items() if k.startswith(OPTION_DEST) and v is not None}
+    values = {}
+    for name, text in given.items():
+        param = spec.param(name)
+        if param is None:
+            from protocols.catalogue import catalogue_params
+
+            option = catalogue_params()[name][0][1].cli_option
+            takes = ", ".join(q.cli_option for q in spec.all_params())
+            raise UsageError(f"{option} is not a parameter of {spec.name}; {spec.name} takes {takes}")
+        try:
+            values[name] = param.parse(text)
+        except ValueError as e:
+            raise UsageError(f"{param.cli_option} {e}") from None
+    return values
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    from protocols.experiment_file import Experiment, build_plan, load_experiment
+    from protocols.catalogue import protocol_spec
+    from protocols.experiment_file import Experiment, ExperimentFileError, build_plan, load_experiment
     from protocols.runner import Runner
 
     from ..devices import open_devices
     from ..reports.progress import TerminalProgress
 
-    overrides: dict[str, Any] = {}
-    if args.frames is not None:
-        overrides["frames_per_stop" if (args.protocol or "perpendicular") == "perpendicular" else "frames"] = args.frames
-    if args.projector:
-        overrides["projector_on"] = args.projector == "on"
-    if args.exposure_us is not None:
-        overrides["exposure_us"] = args.exposure_us
-    if args.gain is not None:
-        overrides["gain"] = args.gain
-    if args.stops:
-        try:
-            overrides["stops_m"] = [float(x) for x in args.stops.split(",")]
-        except ValueError:
-            raise UsageError(f"--stops {args.stops!r}: write distances in m separated by commas, e.g. 0.5,1.0,1.5") from None
-    if args.tilt_deg is not None:
-        overrides["tilt_deg"] = args.tilt_deg
     if args.experiment:
         exp = load_experiment(args.experiment)
+        if args.protocol and args.protocol != exp.plan.name:
+            raise UsageError(f"--protocol {args.protocol}, but {args.experiment} is a {exp.plan.name} experiment; "
+                             "leave out --protocol, or give no file")
+        spec = protocol_spec(exp.plan.name)
+        overrides = protocol_options(args, spec)
         if overrides:
-            params = {**exp.plan.params, **overrides}
-            if exp.plan.name == "tilted" and "frames_per_stop" in params:
-                params["frames"] = params.pop("frames_per_stop")
-            exp.plan = build_plan(exp.plan.name, params)
+            exp.plan = build_plan(spec.name, {**exp.plan.params, **overrides})
     else:
         if not args.protocol:
-            raise UsageError("give an experiment file (rig run FILE.toml) or --protocol perpendicular|tilted")
-        exp = Experiment(build_plan(args.protocol, overrides), "fake:", "fake:" if args.protocol == "perpendicular" else "none:", None)
+            raise UsageError(f"give an experiment file (rig run FILE.toml) or --protocol {'|'.join(protocol_names())}")
+        spec = protocol_spec(args.protocol)
+        exp = Experiment(build_plan(spec.name, protocol_options(args, spec)), "fake:", spec.default_stage, None)
     camera = args.camera or exp.camera
     stage = args.stage or exp.stage
     output = Path(args.output) if args.output else exp.output
     if output is None:
         raise UsageError("no output file; pass -o FILE.h5 (or set output in the experiment file)")
-    p = exp.plan.params
-    devices = open_devices(camera, stage, tilt_deg=p.get("tilt_deg", 0.0), distance_m=p.get("distance_m", 1.0))
+    devices = open_devices(camera, stage, **spec.wall_of(exp.plan.params))
     quiet = verbosity(args) == QUIET
     if not quiet:
         print(f"rig: {exp.plan.name} experiment, camera {camera}, stage {stage} -> {output}", file=sys.stderr)

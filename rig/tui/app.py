@@ -219,7 +219,8 @@ class RigApp(App):
             return
         from drivers.camera import CameraSettings
 
-        self.devices.test_capture(CameraSettings(projector_on=s.projector_on, exposure_us=s.exposure_us, gain=s.gain))
+        self.devices.test_capture(CameraSettings(projector_on=s.value("projector_on"), exposure_us=s.value("exposure_us"),
+                                                 gain=s.value("gain")))
 
     def action_load_experiment(self) -> None:
         devices = self.experiment.load()

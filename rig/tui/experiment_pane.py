@@ -1,5 +1,8 @@
 """Experiment: the protocol and its parameters, loaded from and saved to `rig run`'s TOML files.
 
+The fields are the catalogue's (`form.form_fields`): a protocol registered in `protocols.catalogue` appears in
+the Protocol list with its parameters' fields, each shown while a protocol that takes it is selected.
+
 Every field is checked as it is typed, by the rules `rig run` applies (`form.field_problem`, which uses
 `protocols.plan_check`): values in range, stops within the stage's travel when the Devices screen knows it,
 the output writable, the disk big enough. The lines under the form say what the plan will do, or each
@@ -14,16 +17,14 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Checkbox, Input, Label, Select
 
+from protocols.catalogue import protocol_names
 from protocols.experiment_file import ExperimentFileError
 from protocols.plan_check import RigLimits
 
 from .fields import CheckedField, RuleCheck
-from .form import FIELDS, STOPS_CHARACTERS, ExperimentSettings, field_problem, format_stops, parse_stops
+from .form import OUTPUT, ExperimentSettings, field_label, field_param, field_problem, field_takes, form_fields
 from .widgets import StatusLine
 
-#: what each field takes, in words (said when a character is refused)
-TAKES = {"stops": "distances in m: digits , . : only", "tilt": "a number", "distance": "a number in m",
-         "frames": "a whole number", "exposure": "a number in us", "gain": "a number"}
 #: at most this many problems are listed under the form
 MAX_LINES = 4
 
@@ -38,6 +39,7 @@ class ExperimentPane(Vertical):
         self._toml = toml_path
         self._extra: dict = {}
         self._limits = limits
+        self._fields = form_fields()  # the catalogue's, as it is when the screen is made
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
@@ -45,16 +47,16 @@ class ExperimentPane(Vertical):
             yield Input(self._toml, id="toml-path", compact=True)
         with Horizontal(classes="field"):
             yield Label("Protocol", classes="label")
-            yield Select([("perpendicular", "perpendicular"), ("tilted", "tilted")], value="perpendicular",
+            yield Select([(n, n) for n in protocol_names()], value=self._initial.protocol,
                          allow_blank=False, id="protocol", compact=True)
-        with Horizontal(classes="field"):
-            yield Label("Projector", classes="label")
-            yield Checkbox("on", True, id="projector", compact=True)
-        for wid, label, kind, protocol in FIELDS:
-            with Horizontal(classes=f"field {protocol}".strip(), id=f"row-{wid}"):
-                yield Label(label, classes="label", markup=False)
-                yield CheckedField(id=wid, type=kind, compact=True, validators=[RuleCheck(self._checker(wid))],
-                                   restrict=STOPS_CHARACTERS if wid == "stops" else None)
+        for f in self._fields:
+            with Horizontal(classes="field", id=f"row-{f.id}"):
+                yield Label(field_label(self._initial.protocol, f.id), classes="label", markup=False)
+                if f.kind == "checkbox":
+                    yield Checkbox("on", True, id=f.id, compact=True)
+                else:
+                    yield CheckedField(id=f.id, type=f.kind, compact=True, validators=[RuleCheck(self._checker(f.id))],
+                                       restrict=f.restrict)
         yield Label("", id="plan-line", markup=False)
         yield StatusLine("ctrl+l loads the experiment file, ctrl+s saves it, ctrl+r runs", id="experiment-status")
 
@@ -76,11 +78,16 @@ class ExperimentPane(Vertical):
     def show_settings(self, s: ExperimentSettings) -> None:
         self._extra = dict(s.extra)
         self.query_one("#protocol", Select).value = s.protocol
-        self.query_one("#projector", Checkbox).value = s.projector_on
-        values = {"stops": format_stops(s.stops_m), "tilt": f"{s.tilt_deg:g}", "distance": f"{s.distance_m:g}",
-                  "frames": str(s.frames), "exposure": f"{s.exposure_us:g}", "gain": f"{s.gain:g}", "output": s.output}
-        for wid, v in values.items():
-            self.query_one(f"#{wid}", CheckedField).set_text(v)
+        for f in self._fields:
+            if f.id == OUTPUT:
+                self.query_one(f"#{f.id}", CheckedField).set_text(s.output)
+                continue
+            value = s.value(f.name)  # another protocol's field: that protocol's default
+            if f.kind == "checkbox":
+                self.query_one(f"#{f.id}", Checkbox).value = bool(value)
+            else:
+                protocol = s.protocol if s.protocol in f.protocols else f.protocols[0]
+                self.query_one(f"#{f.id}", CheckedField).set_text(field_param(protocol, f.id).text(value))
         self._show_protocol(s.protocol)
 
     def settings(self) -> ExperimentSettings:
@@ -88,27 +95,26 @@ class ExperimentPane(Vertical):
         problems = self.field_problems()
         if problems:
             raise ExperimentFileError(problems[0])
-        fields = {wid: self.query_one(f"#{wid}", CheckedField).value.strip() for wid, _, _, _ in FIELDS}
-        s = ExperimentSettings(protocol=self.protocol, projector_on=self.query_one("#projector", Checkbox).value,
-                               extra=dict(self._extra))
-        s.frames, s.exposure_us, s.gain = int(fields["frames"]), float(fields["exposure"]), float(fields["gain"])
-        if s.protocol == "tilted":
-            s.tilt_deg, s.distance_m = float(fields["tilt"]), float(fields["distance"])
-        else:
-            s.stops_m = parse_stops(fields["stops"])
-        s.output = fields["output"]
+        s = ExperimentSettings(protocol=self.protocol, extra=dict(self._extra))
+        for f in self._shown():
+            if f.id == OUTPUT:
+                s.output = self.query_one(f"#{f.id}", CheckedField).value.strip()
+            elif f.kind == "checkbox":
+                s.values[f.name] = self.query_one(f"#{f.id}", Checkbox).value
+            else:
+                s.values[f.name] = field_param(self.protocol, f.id).parse(self.query_one(f"#{f.id}", CheckedField).value)
         return s
 
     def field_problems(self) -> list[str]:
         """Each shown field's problem: refused characters first, then values the rules refuse."""
         refusals, values = [], []
-        for wid, label, _, only in FIELDS:
-            if only and only != self.protocol:
+        for f in self._shown():
+            if f.kind == "checkbox":
                 continue
-            f = self.query_one(f"#{wid}", CheckedField)
-            if f.refused:
-                refusals.append(f.refusal(label, f"it takes {TAKES.get(wid, 'text')}"))
-            problem = field_problem(self.protocol, wid, f.value, self._limits())
+            w = self.query_one(f"#{f.id}", CheckedField)
+            if w.refused:
+                refusals.append(w.refusal(field_label(self.protocol, f.id), f"it takes {field_takes(self.protocol, f.id)}"))
+            problem = field_problem(self.protocol, f.id, w.value, self._limits())
             if problem:
                 values.append(problem)
         return refusals + values
@@ -155,9 +161,10 @@ class ExperimentPane(Vertical):
 
     def recheck(self) -> None:
         """Check every field and the plan again (the devices, and so the travel, may have changed)."""
-        for wid, _, _, _ in FIELDS:
-            f = self.query_one(f"#{wid}", CheckedField)
-            f.validate(f.value)
+        for f in self._fields:
+            if f.kind != "checkbox":
+                w = self.query_one(f"#{f.id}", CheckedField)
+                w.validate(w.value)
         self._update_plan_line()
 
     # -- keeping the form honest ------------------------------------------------------------
@@ -178,11 +185,14 @@ class ExperimentPane(Vertical):
         event.checkbox.label = "on" if event.value else "off"  # the state in words, not by colour alone
         self._update_plan_line()
 
+    def _shown(self) -> list:
+        return [f for f in self._fields if self.protocol in f.protocols]
+
     def _show_protocol(self, protocol: str) -> None:
-        for wid, _, _, only in FIELDS:
-            if only:
-                self.query_one(f"#row-{wid}").display = only == protocol
-        self.query_one("#row-frames Label", Label).update("Frames" if protocol == "tilted" else "Frames per stop")
+        for f in self._fields:
+            row = self.query_one(f"#row-{f.id}")
+            row.display = protocol in f.protocols
+            row.query_one(Label).update(field_label(protocol, f.id))
 
     def _update_plan_line(self) -> None:
         line = self.query_one("#plan-line", Label)

@@ -1,7 +1,10 @@
 """The experiment the operator is editing: a plain record that becomes a plan or a TOML file.
 
-No Textual here. The plan is built by `protocols.experiment_file.build_plan` and files are read
-by `load_experiment`, so the TUI accepts and writes exactly what `rig run FILE.toml` does.
+No Textual here. The form's fields are made from the protocol catalogue (`protocols.catalogue`): one field for
+each parameter name a protocol shows on the form (`ProtocolParam.form`), shown while a protocol that takes it
+is selected, with that protocol's label. The plan is built by `protocols.experiment_file.build_plan` and files
+are read by `load_experiment`, so the TUI accepts and writes exactly what `rig run FILE.toml` does; a field's
+text is read by the parameter's own parser, the one `rig run`'s options use.
 """
 
 from __future__ import annotations
@@ -10,70 +13,103 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from protocols.catalogue import catalogue_params, protocol_names, protocol_spec
 from protocols.disk_space import free_bytes, size_text
 from protocols.experiment_file import ExperimentFileError, build_plan, experiment_text, load_experiment, save_experiment
-from protocols.perpendicular import DEFAULT_STOPS_M, perpendicular
 from protocols.plan import Plan
 from protocols.plan_check import RigLimits, disk_need_bytes, output_problems, plan_problems, stop_recipes, value_problem
+from protocols.plan_values import ProtocolParam
+from protocols.protocol_spec import ProtocolSpec
 
 DEFAULT_CAMERA = "fake:width=106,depth_unit_mm=0.05"
 DEFAULT_STAGE = "fake:"
-
-#: the parameters the form edits; any other parameter of a loaded file is kept as it was
-FORM_PARAMS = {
-    "perpendicular": ("stops_m", "frames_per_stop", "projector_on", "exposure_us", "gain"),
-    "tilted": ("tilt_deg", "distance_m", "frames", "projector_on", "exposure_us", "gain"),
-}
+#: the field of the output file (every protocol has one)
+OUTPUT = "output"
+#: what a list field's characters may be (number fields: Textual's own rule for its type)
+LIST_CHARACTERS = r"[0-9.,:;eE+\- ]*"
 
 
-FIELDS = (  # id, label, input type, which protocol shows it ("" = both)
-    ("stops", "Stops [m]", "text", "perpendicular"),
-    ("tilt", "Tilt [deg]", "number", "tilted"),
-    ("distance", "Distance [m]", "number", "tilted"),
-    ("frames", "Frames per stop", "integer", ""),
-    ("exposure", "Exposure [us]", "number", ""),
-    ("gain", "Gain", "number", ""),
-    ("output", "Output file", "text", ""),
-)
-LABELS = {wid: label for wid, label, _, _ in FIELDS}
-#: what a field's characters may be (number fields: Textual's own rule for its type)
-STOPS_CHARACTERS = r"[0-9.,:;eE+\- ]*"
-#: the protocol parameter each number field sets
-NUMBER_PARAMS = {"tilt": "tilt_deg", "distance": "distance_m", "exposure": "exposure_us", "gain": "gain"}
+@dataclass(frozen=True)
+class FormField:
+    """One field of the form: `id` is the widget's id (its `rig run` option without the dashes: --stops ->
+    stops), `name` the parameter's, `kind` the widget ("checkbox", or an Input's type: "number", "integer",
+    "text"), `protocols` the protocols that take it (all: the output file)."""
+
+    id: str
+    name: str
+    kind: str
+    protocols: tuple[str, ...]
+    restrict: str | None = None
+
+
+def form_fields() -> list[FormField]:
+    """The form's fields, from the catalogue: check boxes first, then each protocol's own parameters, the frames
+    and the capture settings, then the output file."""
+    out = []
+    for name, uses in catalogue_params().items():
+        shown = tuple(spec.name for spec, p in uses if p.form)
+        if not shown:
+            continue
+        p = uses[0][1]
+        kind = {bool: "checkbox", float: "number", int: "integer"}.get(p.type, "text")
+        out.append(FormField(p.cli_option.lstrip("-"), name, kind, shown, LIST_CHARACTERS if p.type is list else None))
+    out.sort(key=lambda f: f.kind != "checkbox")
+    return out + [FormField(OUTPUT, OUTPUT, "text", tuple(protocol_names()))]
+
+
+def form_field(wid: str) -> FormField:
+    return next(f for f in form_fields() if f.id == wid)
+
+
+def field_param(protocol: str, wid: str) -> ProtocolParam | None:
+    """The protocol's parameter a field sets (None: the protocol does not take it, or the output file)."""
+    f = form_field(wid)
+    return protocol_spec(protocol).param(f.name) if protocol in f.protocols and f.id != OUTPUT else None
+
+
+def field_label(protocol: str, wid: str) -> str:
+    """A field's label while `protocol` is selected (its parameter's label there)."""
+    if wid == OUTPUT:
+        return "Output file"
+    param = field_param(protocol, wid)
+    if param is None:  # not shown: the label of a protocol that takes it
+        f = form_field(wid)
+        param = protocol_spec(f.protocols[0]).param(f.name)
+    return param.form_label
+
+
+def field_takes(protocol: str, wid: str) -> str:
+    """What a field takes, in words (said when a character is refused)."""
+    param = field_param(protocol, wid)
+    if param is None:
+        return "text"
+    return param.takes() + (": digits , . : only" if param.type is list else "")
 
 
 def field_problem(protocol: str, field: str, text: str, limits: RigLimits | None = None) -> str | None:
     """What is wrong with one field's text, by the rules `rig run` applies (`protocols.plan_check`), or None.
-    Stops are checked against the stage's travel when `limits` knows it."""
-    label, text = LABELS[field], text.strip()
-    only = next(p for wid, _, _, p in FIELDS if wid == field)
-    if only and only != protocol:
-        return None
-    if field == "output":
+    The protocol's stops are checked against the stage's travel when `limits` knows it."""
+    label, text = field_label(protocol, field), text.strip()
+    if field == OUTPUT:
         problems = output_problems(Path(text)) if text else ["give a file name, e.g. run.h5"]
         return f"{label}: {problems[0]}" if problems else None
-    if field == "stops":
-        try:
-            stops = parse_stops(text)
-        except ExperimentFileError as e:
-            return f"{label}: {e}"
-        problem = value_problem(protocol, "stops_m", stops)
-        if problem is None and limits is not None and limits.travel_m is not None:
-            problem = next(iter(plan_problems(perpendicular(stops_m=stops), limits)), None)
-        return None if problem is None else f"{label}: {_unprefixed(problem, protocol)}"
-    whole = field == "frames"
+    param = field_param(protocol, field)
+    if param is None:
+        return None
     try:
-        value = int(text) if whole else float(text)
-    except ValueError:
-        return f"{label}: {text!r} is not a {'whole ' if whole else ''}number" if text else f"{label}: give a number"
-    param = ("frames" if protocol == "tilted" else "frames_per_stop") if whole else NUMBER_PARAMS[field]
-    problem = value_problem(protocol, param, value)
-    return None if problem is None else f"{label}: {_unprefixed(problem, protocol)}"
+        value = param.parse(text)
+    except ValueError as e:
+        return f"{label}: {e}"
+    problem = value_problem(protocol, param.name, value)
+    spec = protocol_spec(protocol)
+    if problem is None and param.name == spec.stops_param and limits is not None and limits.travel_m is not None:
+        problem = next(iter(plan_problems(spec.plan(**{param.name: value}), limits)), None)
+    return None if problem is None else f"{label}: {_unprefixed(problem, protocol, param.name)}"
 
 
-def _unprefixed(problem: str, protocol: str) -> str:
+def _unprefixed(problem: str, protocol: str, name: str) -> str:
     """A protocol's message without the names the field's label already gives."""
-    for prefix in (f"{protocol}: ", "capture settings: ", "stops_m: "):
+    for prefix in (f"{protocol}: ", "capture settings: ", f"{name}: "):
         if problem.startswith(prefix):
             problem = problem[len(prefix):]
     return problem
@@ -81,27 +117,31 @@ def _unprefixed(problem: str, protocol: str) -> str:
 
 @dataclass
 class ExperimentSettings:
-    """Everything the Experiment screen edits (device strings live on the Devices screen)."""
+    """Everything the Experiment screen edits (device strings live on the Devices screen).
 
-    protocol: str = "perpendicular"
-    projector_on: bool = True
-    stops_m: list[float] = field(default_factory=lambda: list(DEFAULT_STOPS_M))
-    frames: int = 300
-    tilt_deg: float = 31.0
-    distance_m: float = 0.8
-    exposure_us: float = 8500.0
-    gain: float = 16.0
+    values: the form's parameters by name (any the protocol takes but `values` lacks: the protocol's default);
+    extra: other parameters of a loaded file, kept verbatim.
+    """
+
+    protocol: str = field(default_factory=lambda: protocol_names()[0])
+    values: dict[str, Any] = field(default_factory=dict)
     output: str = "run.h5"
-    extra: dict[str, Any] = field(default_factory=dict)  # other parameters of a loaded file, kept verbatim
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def spec(self) -> ProtocolSpec:
+        return protocol_spec(self.protocol)
+
+    def value(self, name: str) -> Any:
+        """A parameter's value: as set, else the protocol's default (or that of one that takes it)."""
+        if name in self.values:
+            return self.values[name]
+        param = self.spec.param(name) or next(p for _, p in catalogue_params()[name])
+        return param.default
 
     def params(self) -> dict[str, Any]:
         """The protocol's parameters, as `build_plan` and the [parameters] table take them."""
-        common = {"projector_on": self.projector_on, "exposure_us": self.exposure_us, "gain": self.gain}
-        if self.protocol == "tilted":
-            own = {"tilt_deg": self.tilt_deg, "distance_m": self.distance_m, "frames": self.frames}
-        else:
-            own = {"stops_m": list(self.stops_m), "frames_per_stop": self.frames}
-        return {**own, **common, **self.extra}
+        return {**{p.name: self.value(p.name) for p in self.spec.all_params() if p.form}, **self.extra}
 
     def plan(self) -> Plan:
         """The plan; raises ExperimentFileError with a one-line message if a value is refused."""
@@ -125,37 +165,23 @@ class ExperimentSettings:
         return f"up to {size_text(need)} on disk, {size_text(free_bytes(out.parent))} free"
 
     def device_geometry(self) -> dict[str, float]:
-        """What `open_devices` needs to place a simulated wall for this protocol."""
-        if self.protocol == "tilted":
-            return {"tilt_deg": self.tilt_deg, "distance_m": self.distance_m}
-        return {"tilt_deg": 0.0, "distance_m": 1.0}
+        """What `open_devices` needs to place a simulated wall for this protocol (`ProtocolSpec.wall`)."""
+        return self.spec.wall_of(self.plan().params)
 
     def describe(self) -> str:
         """One line: what the plan will do."""
-        light = "projector on" if self.projector_on else "projector off"
-        if self.protocol == "tilted":
-            return f"tilted: wall at {self.distance_m:g} m tilted {self.tilt_deg:g} deg, {self.frames} frames, {light}"
-        n = len(self.stops_m)
-        span = f"{min(self.stops_m):.2f}-{max(self.stops_m):.2f} m" if n else "no stops"
-        return f"perpendicular: {n} stops {span} x {self.frames} frames = {n * self.frames} frames, {light}"
+        return describe_plan(self.plan(), self.spec)
 
     # -- files ------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | Path) -> tuple["ExperimentSettings", str, str]:
         """Read an experiment file as `rig run` does; return the settings, camera and stage strings."""
         exp = load_experiment(path)
-        p = dict(exp.plan.params)
-        own = FORM_PARAMS[exp.plan.name]
-        s = cls(protocol=exp.plan.name)
-        s.projector_on = bool(p["projector_on"])
-        s.exposure_us = float(p["exposure_us"])
-        s.gain = float(p["gain"])
-        if exp.plan.name == "tilted":
-            s.tilt_deg, s.distance_m, s.frames = float(p["tilt_deg"]), float(p["distance_m"]), int(p["frames"])
-        else:
-            s.stops_m, s.frames = [float(z) for z in p["stops_m"]], int(p["frames_per_stop"])
-        defaults = build_plan(exp.plan.name, {}).params
-        s.extra = {k: v for k, v in p.items() if k not in own and v != defaults.get(k)}
+        p, spec = dict(exp.plan.params), protocol_spec(exp.plan.name)
+        shown = {q.name for q in spec.all_params() if q.form}
+        defaults = build_plan(spec.name, {}).params
+        s = cls(protocol=spec.name, values={k: v for k, v in p.items() if k in shown},
+                extra={k: v for k, v in p.items() if k not in shown and v != defaults.get(k)})
         s.output = _shorter(exp.output) if exp.output is not None else s.output
         return s, exp.camera, exp.stage
 
@@ -171,25 +197,18 @@ class ExperimentSettings:
                                header="Written by rig tui. Run: rig run THIS-FILE.toml")
 
 
-def parse_stops(text: str) -> list[float]:
-    """Distances in m: '0.5, 1.0, 1.5' or a range 'START:STOP:STEP' (inclusive), e.g. '0.5:3:0.25'."""
-    text = text.strip()
-    try:
-        if ":" in text:
-            parts = [float(x) for x in text.split(":")]
-            if len(parts) != 3 or parts[2] <= 0 or parts[1] < parts[0]:
-                raise ValueError
-            start, stop, step = parts
-            n = int(round((stop - start) / step))
-            return [round(start + i * step, 6) for i in range(n + 1) if start + i * step <= stop + 1e-9]
-        return [float(x) for x in text.replace(";", ",").split(",") if x.strip()]
-    except ValueError:
-        raise ExperimentFileError(f"stops {text!r}: write distances in m separated by commas (0.5, 1.0, 1.5) "
-                                  "or a range START:STOP:STEP (0.5:3.0:0.25)") from None
-
-
-def format_stops(stops: list[float]) -> str:
-    return ", ".join(f"{z:g}" for z in stops)
+def describe_plan(plan: Plan, spec: ProtocolSpec) -> str:
+    """One line: the stops, the frames and the light, e.g. 'perpendicular: 11 stops 0.50-3.00 m x 300 frames =
+    3300 frames, projector on'; then the protocol's other own parameters ('; tilt_deg 31')."""
+    recipes = list(stop_recipes(plan).values())
+    n, frames = len(recipes), [r.capture.n_frames for r in recipes]
+    at = sorted(r.position_m for r in recipes if r.position_m is not None)
+    span = "" if not at else f" at {at[0]:.2f} m" if at[0] == at[-1] else f" {at[0]:.2f}-{at[-1]:.2f} m"
+    count = f"x {frames[0]} frames = {sum(frames)} frames" if len(set(frames)) == 1 else f"{sum(frames)} frames"
+    light = "projector on" if plan.params.get("projector_on", True) else "projector off"
+    others = [f"{p.name} {p.text(plan.params[p.name])}" for p in spec.params if p.name != spec.stops_param]
+    return (f"{plan.name}: {n} stop{'s' * (n != 1)}{span} {count}, {light}" if n else f"{plan.name}: no stops") + \
+        "".join(f"; {o}" for o in others)
 
 
 def _shorter(path: Path) -> str:
@@ -198,5 +217,3 @@ def _shorter(path: Path) -> str:
         return str(path.resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
         return str(path)
-
-
