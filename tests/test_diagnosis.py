@@ -113,9 +113,9 @@ def test_an_effect_that_cannot_be_fitted_is_named_with_its_reason(tmp_path):
         params = (Param("gain", 1.0, 0.5, 2.0, "1", "a factor on the variance"),)
 
         def apply(self, pred, p, d):
-            if p["fragile.gain"] != 1.0:
+            if p.gain != 1.0:
                 raise ValueError("fragile: no model for a gain other than 1")
-            pred.var_m2 = pred.var_m2 * p["fragile.gain"]
+            pred.var_m2 = pred.var_m2 * p.gain
 
     out = tmp_path / "x.h5"
     assert main(["simulate", "--seed", "5", "--effect", "slant_range", str(out)]) == 0

@@ -51,7 +51,7 @@ def _agree(d: ModelData, model: str) -> None:
     grouped, full = m.fit(d, errors=False), m.fit(d, grouped=False)
     assert grouped.loglik == pytest.approx(full.loglik, abs=0.05)
     names = [n for n, _ in m.free()]
-    same_point, _ = _standard_errors(m, full.values, nodes, names)
+    same_point, _, _ = _standard_errors(m, full.values, nodes, names)
     for name, se in full.errors.items():
         assert np.isfinite(se) and se > 0, (model, name)
         assert abs(grouped.values[name] - full.values[name]) < 0.1 * se, (model, name, grouped.values[name], full.values[name], se)

@@ -15,50 +15,55 @@ from .usage import UsageError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add the analysis commands to the `rig` parser."""
-    p = sub.add_parser("fit", help="fit sigma_Z = k Z^lambda to a recording")
-    p.add_argument("recording")
-    p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
-    p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
-    p.add_argument("--plot", help="write a sigma-vs-range PNG here")
+    """Add the analysis commands to the `rig` parser; what they share comes from the parents below."""
+    shared, window, held_out = _shared_options(), _window_options(), _held_out_options()
+
+    p = sub.add_parser("fit", parents=[shared, window, held_out], help="fit sigma_Z = k Z^lambda to a recording")
+    p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
+    p.add_argument("--plot", metavar="FILE.png", help="write a sigma-vs-range plot here (any format matplotlib writes: "
+                                                      ".png, .pdf, .svg, ...)")
     p.add_argument("--table", metavar="STOPS.csv", help="write the per-stop table here (range, pixels, samples, "
                                                        "measured and model sigma, fill rate; CSV)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
-    p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
-    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     p.add_argument("--many", action="store_true", help="RECORDING is a folder: fit every *.h5 in it, one process per "
                                                        "core (--jobs), a line each (with --json: one document a line)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                   help="processes for --many and for the held-out score's refits (default: one per core)")
-    _add_effects_arg(p)
     p.set_defaults(func=cmd_fit)
 
-    p = sub.add_parser("compare", help="fit several models and show their errors side by side")
-    p.add_argument("recording")
+    p = sub.add_parser("compare", parents=[shared, window, held_out],
+                       help="fit several models and show their errors side by side")
     p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
-    p.add_argument("--z-min", type=float, help="use only pixels with mean range >= this (m)")
-    p.add_argument("--z-max", type=float, help="use only pixels with mean range <= this (m)")
-    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                   help="processes for the held-out score's refits (default: one per core)")
-    _add_effects_arg(p)
     p.set_defaults(func=cmd_compare)
 
-    p = sub.add_parser("diagnose", help="where the model fails and which physical effect is most likely missing")
-    p.add_argument("recording")
+    p = sub.add_parser("diagnose", parents=[shared], help="where the model fails and which physical effect is most likely missing")
     p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
     p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
-    _add_effects_arg(p)
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                   help="fit the candidate effects in this many processes (default: one per core)")
     p.set_defaults(func=cmd_diagnose)
 
 
-def _add_effects_arg(p: argparse.ArgumentParser) -> None:
+def _shared_options() -> argparse.ArgumentParser:
+    """What fit, compare and diagnose all take: the recording, --json, --effects and --jobs."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("recording")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
                    help="load effects you wrote (a Python file using @effect; docs/effects.md); may be repeated")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="processes for the work that runs in parallel: the held-out score's refits, --many, the "
+                        "diagnosis's candidate effects (default: one per core)")
+    return p
+
+
+def _window_options() -> argparse.ArgumentParser:
+    """The window of ranges to fit (fit, compare): --z-min, --z-max, in metres."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--z-min", type=float, metavar="M", help="use only pixels with mean range >= this (m)")
+    p.add_argument("--z-max", type=float, metavar="M", help="use only pixels with mean range <= this (m)")
+    return p
+
+
+def _held_out_options() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
+    return p
 
 
 def catalogue_of(args: argparse.Namespace):
@@ -72,20 +77,48 @@ def catalogue_of(args: argparse.Namespace):
 
 
 def _model_data(path: str, z_min: float | None = None, z_max: float | None = None):
-    """(ModelData of the recording, its notes), from one opening of the file."""
+    """(ModelData of the recording in the --z-min/--z-max window, its notes), from one opening of the file."""
     from protocols.recording import Recording
 
+    from ..analysis import in_window, recording_notes
     from ..models import load_samples
 
     try:
         with Recording(path) as rec:
             d = load_samples(rec).positive_variance()
-            notes = rec.notes()
+            notes = recording_notes(rec)
+        return in_window(d, z_min, z_max), notes
     except ValueError as e:
         raise UsageError(str(e)) from None
-    if z_min is not None or z_max is not None:
-        d = d.in_range(z_min or 0, z_max or float("inf"))
-    return d, notes
+
+
+def _check_window(args: argparse.Namespace) -> None:
+    """Refuse a --z-min/--z-max window that can hold no pixel, before the recording is read."""
+    from ..analysis import check_window
+
+    try:
+        check_window(getattr(args, "z_min", None), getattr(args, "z_max", None))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def _refuse_plot_format(path: str | None) -> None:
+    """Refuse a --plot file matplotlib cannot write, before the work (one line, naming the suffixes it can)."""
+    if path is None:
+        return
+    from ..reports.sigma_plot import plot_format_problem
+
+    problem = plot_format_problem(path)
+    if problem:
+        raise UsageError(f"cannot write --plot {path}: {problem}")
+
+
+def _model_notes(model, d) -> list[str]:
+    """Notes about fitting `model` to `d` (rig.diagnosis.base_mismatch: a base that does not fit the recording)."""
+    from ..diagnosis import base_mismatch
+
+    note = base_mismatch(model, d)
+    return [note] if note else []
 
 
 def _parse_model(text: str, catalogue=None):
@@ -109,6 +142,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from ..diagnosis import headline
     from ..models.progress import ProgressCounter
 
+    _check_window(args)
+    _refuse_plot_format(args.plot)
     refuse_unwritable(args.plot, "--plot")
     refuse_unwritable(args.table, "--table")
     if not args.model and not args.many:
@@ -190,6 +225,7 @@ def _fit_model(args: argparse.Namespace) -> int:
         counter = ProgressCounter(progress, 3)
         counter.step("reading the recording")
         d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        notes = notes + _model_notes(model, d)
         if not args.no_held_out:
             counter.expect(2 + len(np.unique(held_out_folds(d))))
         counter.step(f"fitting {model.name}")
@@ -225,6 +261,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis.scores import held_out_folds
     from ..models.progress import ProgressCounter
 
+    _check_window(args)
     cat = catalogue_of(args)
     models = [_parse_model(m, cat) for m in args.models.split(",")]
     rows = []
@@ -232,6 +269,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         counter = ProgressCounter(progress, 1 + 2 * len(models))
         counter.step("reading the recording")
         d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        firsts = {m.base.name: m for m in reversed(models)}  # one note a base, naming its first model
+        notes = notes + [n for m in models if firsts[m.base.name] is m for n in _model_notes(m, d)]
         if not args.no_held_out:
             counter.expect(len(models) * (2 + len(np.unique(held_out_folds(d)))))
         for m in models:
@@ -278,6 +317,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     with progress_line(args, "rig diagnose") as progress:
         progress(WorkProgress("reading the recording", 0, 1))
         d, notes = _model_data(args.recording)
+        if model is not None:
+            notes = notes + _model_notes(model, d)
         steps = [0]
 
         def fits(p: WorkProgress) -> None:  # the diagnosis's own steps; the report is one more

@@ -7,11 +7,11 @@ ranks the effects not yet in the model; `verdict` decides what is missing; `text
 
 from .bins import BinComparison, BinnedSigma, compare_bins, pooled_sigma, range_bins, sigma_by_range
 from .candidates import Candidate, choose, rank_candidates
-from .verdict import Diagnosis, default_model, diagnose
+from .verdict import Diagnosis, base_mismatch, default_model, diagnose
 from .scores import Headline, headline, held_out_nll
 from .residuals import Residuals, residuals
 from .text import render_text
 
 __all__ = ["BinComparison", "BinnedSigma", "compare_bins", "pooled_sigma", "range_bins", "sigma_by_range", "Candidate",
-           "choose", "rank_candidates", "Diagnosis", "default_model", "diagnose", "Headline", "headline",
+           "choose", "rank_candidates", "Diagnosis", "base_mismatch", "default_model", "diagnose", "Headline", "headline",
            "held_out_nll", "Residuals", "residuals", "render_text"]

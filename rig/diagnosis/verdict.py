@@ -184,6 +184,22 @@ def default_model(d: ModelData) -> Model:
     return Model(BASES["active"] if d.projector_on.mean() > 0.5 else BASES["passive"])
 
 
+def base_mismatch(model: Model, d: ModelData) -> str | None:
+    """A note when the model's base does not fit how the recording was made: `active` (lambda = 3, projected
+    light) on a recording with the projector off at every stop, or `passive` (lambda = 2) with it on at every
+    stop; None otherwise."""
+    lam, on = model.base.lam, d.projector_on
+    if lam == 3.0 and len(on) and not on.any():
+        return (f"{model.base.name} assumes the projector is on (lambda = 3: the projected light falls as 1/Z^2), but "
+                "this recording was made with the projector off (passive stereo): fit passive (lambda = 2) or power_law instead, "
+                f"e.g. --model {model.name.replace(model.base.name, 'passive', 1)}")
+    if lam == 2.0 and len(on) and on.all():
+        return (f"{model.base.name} assumes constant light (lambda = 2, passive stereo), but this recording was made "
+                "with the projector on: fit active (lambda = 3) or power_law instead, "
+                f"e.g. --model {model.name.replace(model.base.name, 'active', 1)}")
+    return None
+
+
 def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", catalogue: Catalogue | None = None,
              max_steps: int = MAX_STEPS, explain: bool = True, second_round: bool | None = None,
              progress: ProgressFn | None = None, jobs: int = 1) -> Diagnosis:

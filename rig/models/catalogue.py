@@ -73,9 +73,15 @@ class Catalogue:
 
     def parse(self, text: str) -> Model:
         """'active+slant_range+noise_floor' (or '...+empirical(radius)') -> Model."""
-        parts = [p.strip() for p in text.replace(" ", "").split("+") if p.strip()]
-        if not parts or parts[0] not in BASES:
+        parts = text.replace(" ", "").split("+")
+        if not parts[0] or parts[0] not in BASES:
             raise ValueError(f"model {text!r} must start with a base model ({', '.join(BASES)}), e.g. active+slant_range")
+        if "" in parts[1:]:
+            raise ValueError(f"model {text!r} has a '+' with no effect after it; name the effect "
+                             f"({parts[0]}+noise_floor) or drop the '+'")
+        twice = sorted({name for name in parts[1:] if parts[1:].count(name) > 1})
+        if twice:
+            raise ValueError(f"model {text!r} names {', '.join(twice)} twice; name each effect once")
         m = Model(BASES[parts[0]])
         for name in parts[1:]:
             if name.startswith("empirical(") and name.endswith(")"):

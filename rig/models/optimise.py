@@ -14,6 +14,7 @@ from scipy.optimize import minimize
 
 from .closed_form import power_law_mle
 from .data import ModelData
+from .error_notes import error_notes
 from .parameters import Param
 from .result import ModelFit
 
@@ -134,9 +135,9 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
     y0 = starts[0]
     best = unpack(res.x)
     ll = model.loglik(best, d if exact_loglik else work)
-    se, cov = _standard_errors(model, best, work, names) if errors else ({}, None)
+    se, cov, notes = _standard_errors(model, best, work, names) if errors else ({}, None, {})
     return ModelFit(model, best, se, ll, converged=bool(res.success) or res.fun < objective(y0), message=str(res.message),
-                    covariance=cov, **summary)
+                    covariance=cov, error_notes=notes, **summary)
 
 
 def fit_data(model: ComposedModel, d: ModelData) -> ModelData:
@@ -170,13 +171,14 @@ def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:
     names = [n for n, _ in fit.model.free()]
     if not names or all(n in fit.errors for n in names):
         return fit
-    se, cov = _standard_errors(fit.model, fit.values, fit_data(fit.model, d), names)
-    return replace(fit, errors=se, covariance=cov)
+    se, cov, notes = _standard_errors(fit.model, fit.values, fit_data(fit.model, d), names)
+    return replace(fit, errors=se, covariance=cov, error_notes=notes)
 
 
 def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelData,
-                     names: list[str]) -> tuple[dict[str, float], np.ndarray | None]:
-    """Cramer-Rao standard errors from the inverse of the observed information (minus the Hessian), and the covariance.
+                     names: list[str]) -> tuple[dict[str, float], np.ndarray | None, dict[str, str]]:
+    """Cramer-Rao standard errors from the inverse of the observed information (minus the Hessian), the covariance,
+    and for each error that could not be had, why (`rig.models.error_notes`).
 
     The Hessian is taken by central differences twice: first its diagonal, with steps of 1e-4 of each value, then
     the whole with steps of a fifth of each parameter's error with the others held, 1 / sqrt(-H_ii) (kept inside the
@@ -188,7 +190,7 @@ def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelDat
     nearly singular and its inverse would magnify the differences' rounding; the covariance is carried back by
     the Jacobian of k = k_ref z_ref^-lambda."""
     if not names:
-        return {}, None
+        return {}, None, {}
     x = np.array([values[n] for n in names])
     params = dict(model.parameters())
     reparam = "k" in names and "lambda" in names
@@ -241,7 +243,7 @@ def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelDat
             if not (np.all(np.isfinite(s)) and np.all(np.isfinite(held))):
                 break
             steps = np.minimum(0.2 * held, np.where(room > 0, 0.5 * room, steps))
-    return dict(zip(names, map(float, se))), cov
+    return dict(zip(names, map(float, se))), cov, error_notes(names, values, params, h, se)
 
 
 def _log_middle_range(d: ModelData) -> float:

@@ -44,6 +44,8 @@ class ModelFit:
     #: the Gamma likelihood of the pixel variances (rig.models.data); they differ by terms of the data alone,
     #: so compare BICs only between fits of the same kind
     likelihood: str = "Gamma, of the pixel variances"
+    #: for each free parameter without a standard error (NaN), why, in words (`rig.models.error_notes`)
+    error_notes: dict[str, str] = field(default_factory=dict)
 
     # -- criteria ----------------------------------------------------------------------------
     @property
@@ -128,19 +130,29 @@ class ModelFit:
         width = max(len(name) for name, _ in self.model.parameters())
         for name, p in self.model.parameters():
             v = self.values[name]
+            unit = "" if p.unit == "1" else p.unit
             if p.vary:
                 se = self.errors.get(name, float("nan"))
-                at = "  (at bound)" if (abs(v - p.min) < 1e-6 * max(1, abs(p.min)) or abs(v - p.max) < 1e-6 * max(1, abs(p.max))) else ""
-                unit = "" if p.unit == "1" else p.unit
-                lines.append(f"    {name:<{width}} = {v:.6g} +/- {se:.2g} {unit}{at}".rstrip())
+                at = "  (at bound)" if p.at_bound(v) else ("  (no error: see below)" if name in self.error_notes else "")
+                lines.append(f"    {name:<{width}} = {v:.6g} +/- {se:.2g} {unit}".rstrip() + at)
             else:
-                lines.append(f"    {name:<{width}} = {v:.6g} {'' if p.unit == '1' else p.unit}".rstrip() + " (fixed)")
+                lines.append(f"    {name:<{width}} = {v:.6g} {unit}".rstrip() + " (fixed)")
+        for why, names in _grouped(self.error_notes).items():
+            lines.append(f"    no standard error for {', '.join(names)}: {why}")
         if not self.lam_fixed:
             lines.append(f"    corr(k, lambda) = {self.corr:+.3f}")
         for e in self.model.effects:
             if not e.params or not any(p.vary for p in e.params):
                 lines.append(f"    {e.name}: no free parameter ({e.explanation})")
         return "\n".join(lines)
+
+
+def _grouped(notes: dict[str, str]) -> dict[str, list[str]]:
+    """The parameters of each distinct note, in order."""
+    out: dict[str, list[str]] = {}
+    for name, why in notes.items():
+        out.setdefault(why, []).append(name)
+    return out
 
 
 def likelihood_ratio(base: ModelFit, extended: ModelFit) -> tuple[float, int, float]:

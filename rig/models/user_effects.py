@@ -28,6 +28,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import keyword
+import sys
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -246,14 +247,19 @@ def load_effects(path: str | Path) -> list[Effect]:
         raise EffectFileError(f"{path} is not a Python file; name it *.py")
     module = importlib.util.module_from_spec(spec)
     forget(module_name)
+    sys.modules[module_name] = module  # as an import does: dataclasses and pickling look the module up there
     try:
         spec.loader.exec_module(module)
-    except SyntaxError as e:
-        raise EffectFileError(f"{path}:{e.lineno}: syntax error ({e.msg}); fix the line") from None
-    except EffectFileError as e:
-        raise EffectFileError(f"{e} (in {path})") from None
-    except Exception as e:
-        raise EffectFileError(f"{path}: running it failed ({type(e).__name__}: {e}); fix the file") from None
+    except BaseException as e:
+        sys.modules.pop(module_name, None)  # as a failed import leaves nothing
+        forget(module_name)
+        if isinstance(e, SyntaxError):
+            raise EffectFileError(f"{path}:{e.lineno}: syntax error ({e.msg}); fix the line") from None
+        if isinstance(e, EffectFileError):
+            raise EffectFileError(f"{e} (in {path})") from None
+        if isinstance(e, Exception):
+            raise EffectFileError(f"{path}: running it failed ({type(e).__name__}: {e}); fix the file") from None
+        raise
     found = registered_by(module_name)
     theirs = [*found, *EFFECTS.values()]  # a built-in effect the file imports is not the file's
     found += [v for v in vars(module).values() if isinstance(v, Effect) and not any(v is e for e in theirs)]

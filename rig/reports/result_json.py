@@ -75,6 +75,7 @@ def fit_json(fit: ModelFit, head: Headline | None = None, status: LambdaStatus |
         "headline": None if head is None else headline_json(head),
         "lambda_status": None if status is None else status.as_dict(),
         "held_out_nll": held_out_nll,
+        "error_notes": dict(fit.error_notes),
     }
 
 

@@ -26,6 +26,24 @@ class SigmaSeries:
     color: str
 
 
+def plot_format_problem(path: str | Path) -> str | None:
+    """Why matplotlib cannot write a plot to `path` (its suffix names no format it writes), with the suffixes it
+    can; None if it can."""
+    suffixes = sorted(fig_formats())
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix in suffixes:
+        return None
+    what = f"its suffix .{suffix} is not a format matplotlib writes" if suffix else "it has no suffix to name the format"
+    return f"{what}; name it with one of {', '.join('.' + s for s in suffixes)} (e.g. fit.png)"
+
+
+def fig_formats() -> dict[str, str]:
+    """The formats matplotlib can save a figure in, by suffix."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return FigureCanvasBase.get_supported_filetypes()
+
+
 def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str = "Range error against range") -> Path:
     """Like the paper's Fig. 1: sigma_Z against Z, measured with error bars and fitted curves.
 

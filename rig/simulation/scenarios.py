@@ -141,7 +141,10 @@ def _draw(name: str, rng: np.random.Generator) -> dict[str, float]:
 
 
 def hidden_scenario(seed: int, effect: str | None = None, **kw: Any) -> Scenario:
-    """The scenario for a seed: the seed picks the effect (unless given) and draws its parameters."""
+    """The scenario for a seed: the seed picks the effect (unless given) and draws its parameters. A seed below 0
+    is a ValueError naming --seed (the option that gives it)."""
+    if seed < 0:
+        raise ValueError(f"--seed {seed}: a seed is a whole number from 0 up; give --seed 0 or more")
     rng = np.random.default_rng(seed)
     pick = CHOICES[int(rng.integers(len(CHOICES)))]
     effect = effect or pick

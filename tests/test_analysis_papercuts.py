@@ -1,0 +1,164 @@
+"""A new user's mistakes with rig fit, compare, diagnose and simulate: each is one line naming what to change, and
+nothing is silently wrong (issue 27's papercuts of the analysis commands)."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from drivers.folder import MANIFEST_NAME
+from protocols.folder_import import import_folder
+from protocols.recording import Recording
+from rig.cli import main
+from rig.models import Catalogue, ModelData, Param, effect, noise_floor
+
+#: an illumination factor that does what a larger k does: degenerate with k
+DEGENERATE = '''
+from rig.models import Param, effect
+
+@effect(stage="illumination", params=[Param("gain", 1.0, 0.1, 10.0, "1", "a constant factor on the light")],
+        signature="the error is larger everywhere by the same factor")
+def gain(c, gain):
+    """A constant factor on the shot-noise variance: the same as a larger k."""
+    return gain + 0 * c.z_m
+'''
+
+
+def one_line(capsys, *needles: str) -> str:
+    out = capsys.readouterr()
+    err = out.err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err and not out.out, (out.out, err)
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory) -> Path:
+    """A live run of three stops (0.75, 1.25, 2.0 m; 24x14 px, 6 frames), its frames written as a folder (one .npy a
+    stop, named stop_a, stop_b, stop_c) and imported with rig import."""
+    from simrig import record_perpendicular
+
+    root = tmp_path_factory.mktemp("imp")
+    live, _, _ = record_perpendicular(root / "live.h5", width=24, frames=6, stops_m=[0.75, 1.25, 2.0], keep_raw=True)
+    folder, distances = root / "frames", {}
+    with h5py.File(live, "r") as f:
+        for i, label in enumerate(sorted(f["stops"], key=lambda k: f["stops"][k].attrs["index"])):
+            name = f"stop_{'abc'[i]}"
+            distances[name] = float(f["stops"][label].attrs["commanded_position_m"])
+            (folder / name).mkdir(parents=True)
+            np.save(folder / name / "depth.npy", f["stops"][label]["raw_depth"][:])
+    with Recording(live) as rec:
+        c = rec.calibration
+    lines = [f"fx = {c.fx!r}", f"fy = {c.fy!r}", f"cx = {c.cx!r}", f"cy = {c.cy!r}", f"baseline_m = {c.baseline_m!r}",
+             f"depth_unit_m = {c.depth_scale_m!r}", "projector_on = true", "exposure_us = 8500.0", "gain = 16.0",
+             "[stop_distance_m]", *(f'"{k}" = {v!r}' for k, v in distances.items())]
+    (folder / MANIFEST_NAME).write_text("\n".join(lines) + "\n")
+    return import_folder(folder, root / "imported.h5")
+
+
+def test_fit_of_an_import_does_not_say_its_stops_are_missing(imported, capsys):
+    with Recording(imported) as rec:
+        assert rec.protocol == "import" and len(rec.stop_labels()) == 3
+    for command in (["fit", str(imported)], ["fit", str(imported), "--model", "active", "--no-held-out"]):
+        assert main(command) == 0
+        out = capsys.readouterr().out
+        assert "planned stops" not in out and "--resume" not in out, out
+
+
+def test_a_plot_file_matplotlib_cannot_write_is_refused_before_the_fit(small_recording, tmp_path, capsys):
+    assert main(["fit", str(small_recording), "--plot", str(tmp_path / "fit.txt")]) == 2
+    one_line(capsys, "--plot", "fit.txt", ".txt", ".png", ".pdf", ".svg")
+    assert not (tmp_path / "fit.txt").exists()
+    assert main(["fit", str(small_recording), "--plot", str(tmp_path / "fit")]) == 2
+    one_line(capsys, "no suffix", ".png")
+    assert main(["fit", str(small_recording), "--plot", str(tmp_path / "fit.svg")]) == 0
+    assert (tmp_path / "fit.svg").read_text().lstrip().startswith("<?xml")
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("active+", "a '+' with no effect after it"),
+    ("active++noise_floor", "a '+' with no effect after it"),
+    ("active+noise_floor+noise_floor", "names noise_floor twice"),
+])
+def test_a_model_with_a_dangling_or_repeated_effect_is_refused(small_recording, capsys, text, needle):
+    assert main(["fit", str(small_recording), "--model", text, "--no-held-out"]) == 2
+    one_line(capsys, repr(text), needle)
+
+
+def test_two_effects_of_one_name_do_not_silently_compose():
+    @effect(stage="disparity", params=[Param("sigma_px", 0.01, 0.0, 5.0, "px", "a floor")], signature="short range",
+            name="noise_floor")
+    def other_floor(c, sigma_px):
+        """Another noise floor."""
+        return sigma_px**2 + 0 * c.z_m
+
+    from rig.models import active
+
+    assert (active + noise_floor) + noise_floor == active + noise_floor  # the same effect again changes nothing
+    with pytest.raises(ValueError, match="has an effect noise_floor already .*NoiseFloor.*other_floor"):
+        (active + noise_floor) + other_floor
+
+
+def test_active_on_a_passive_recording_says_so_naming_passive(tmp_path, capsys):
+    from simrig import record_perpendicular
+
+    path, _, _ = record_perpendicular(tmp_path / "off.h5", width=24, frames=6, projector_on=False,
+                                      stops_m=[0.75, 1.25, 2.0])
+    assert main(["fit", str(path), "--model", "active", "--no-held-out"]) == 0
+    out = capsys.readouterr().out
+    note = next(line for line in out.splitlines() if line.startswith("note: "))
+    assert "projector off" in note and "passive" in note and "--model passive" in note, out
+    assert main(["fit", str(path), "--model", "active", "--no-held-out", "--json"]) == 0
+    assert any("passive" in n for n in json.loads(capsys.readouterr().out)["notes"])
+    assert main(["fit", str(path), "--model", "passive", "--no-held-out"]) == 0
+    assert "note:" not in capsys.readouterr().out
+
+
+def test_a_missing_standard_error_says_why(small_recording, tmp_path, capsys):
+    fx = tmp_path / "gain.py"
+    fx.write_text(textwrap.dedent(DEGENERATE))
+    assert main(["fit", str(small_recording), "--effects", str(fx), "--model", "active+gain", "--no-held-out"]) == 0
+    out = capsys.readouterr().out
+    assert "k        " in out and "(no error: see below)" in out, out
+    assert "no standard error for k, gain.gain: k and gain.gain trade off against each other" in out, out
+    assert main(["fit", str(small_recording), "--effects", str(fx), "--model", "active+gain", "--no-held-out",
+                 "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)["fits"][0]
+    assert fit["errors"] == {"k": None, "gain.gain": None}
+    assert set(fit["error_notes"]) == {"k", "gain.gain"} and "cannot tell them apart" in fit["error_notes"]["k"]
+
+
+def test_an_effect_the_data_do_not_show_sits_at_its_bound_and_says_so(tmp_path):
+    from rig.simulation.scenarios import hidden_scenario, record_scenario
+
+    path = record_scenario(hidden_scenario(3, "none", width=48, frames=40), tmp_path / "none.h5")
+    f = Catalogue.builtin().parse("active+noise_floor+read_noise").fit(ModelData.from_recording(path))
+    for n in ("noise_floor.sigma_px", "read_noise.ratio_at_1m"):  # the simulated camera has neither: both fit at 0
+        assert f.values[n] < 1e-6 and not np.isfinite(f.errors[n]), (f.values, f.errors)
+        assert f.error_notes[n].startswith(f"at its lower bound, 0: the data show none of {n.split('.')[0]}")
+    assert not np.isfinite(f.errors["k"]) and f.error_notes["k"].startswith("its error is joint with that of")
+    report = f.report()
+    assert "+/- nan  (at bound)" in report and "no standard error for k: its error is joint with" in report, report
+
+
+@pytest.mark.parametrize("window,needles", [
+    (["--z-min", "500", "--z-max", "2000"], ["--z-min 500 --z-max 2000", "millimetres", "--z-min 0.5 --z-max 2"]),
+    (["--z-min", "2", "--z-max", "1"], ["--z-min 2 --z-max 1", "inverted", "--z-min 1 --z-max 2"]),
+    (["--z-max", "0.2"], ["--z-max 0.2", "span 0.", "overlaps"]),
+])
+@pytest.mark.parametrize("command", [["fit"], ["fit", "--model", "active", "--no-held-out"],
+                                     ["compare", "--models", "active", "--no-held-out"]])
+def test_a_window_that_keeps_no_pixel_is_named(small_recording, capsys, window, needles, command):
+    assert main([command[0], str(small_recording), *command[1:], *window]) == 2
+    one_line(capsys, *needles)
+
+
+def test_a_negative_seed_names_the_option(tmp_path, capsys):
+    assert main(["simulate", "--scenario", "hidden", "--seed", "-1", str(tmp_path / "x.h5")]) == 2
+    one_line(capsys, "--seed -1", "0 or more")
