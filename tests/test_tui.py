@@ -117,7 +117,13 @@ def test_pause_abort_keeps_completed_stops_then_resume_finishes(tmp_path, monkey
 # -- results --------------------------------------------------------------------------------
 
 
-def test_adding_the_missing_effect_lowers_the_headline_error(slant_recording):
+def test_adding_the_missing_effect_lowers_the_headline_error(slant_recording, monkeypatch):
+    import rig.tui.results_service as service
+
+    diagnoses = []  # a refit is one fit of the model, not another diagnosis
+    real = service.diagnose
+    monkeypatch.setattr(service, "diagnose", lambda *a, **k: (diagnoses.append(1), real(*a, **k))[1])
+
     async def go():
         app = RigApp(connect=False, recording=str(slant_recording))
         async with app.run_test(size=(80, 24)) as pilot:
@@ -132,6 +138,7 @@ def test_adding_the_missing_effect_lowers_the_headline_error(slant_recording):
             assert app.focused is effects and effects.highlighted == 0
             await pilot.press("space", "f")
             await until(pilot, lambda: len(app.results.session.history) == 2 and not app.results.busy, "the refit")
+            assert len(diagnoses) == 1, "f refitted by diagnosing again"
             before, after = (h.headline for h in app.results.session.history)
             assert after.error_pct < before.error_pct / 5, (before, after)
             assert app.results.session.effects == ["slant_range"]

@@ -224,20 +224,20 @@ def test_a_diagnosis_shows_progress_with_time_left_and_the_app_stays_responsive(
         app = RigApp(connect=False, recording=str(slant))
         async with app.run_test(size=(80, 24)) as pilot:
             busy_when_switched: list[bool] = []
-            switch = app.action_digit_tab
+            switch = app.action_show_tab
 
             def spy(tab: str) -> None:  # the key is handled while the diagnosis works in its thread
                 busy_when_switched.append(app.results.busy)
                 switch(tab)
 
-            app.action_digit_tab = spy
+            app.action_show_tab = spy
             seen: list[str] = []
             show = app.results.status.show
             app.results.status.show = lambda text, level="info": (seen.append(text), show(text, level))
             deadline = time.monotonic() + TIMEOUT_S
             while not app.results.status.text.startswith("diagnosing") and time.monotonic() < deadline:
                 await pilot.pause(0.01)
-            await pilot.press("2")
+            await pilot.press("f2")  # (the path field has the focus: a 2 would be typed into it)
             assert app.tab == "experiment" and busy_when_switched == [True]
             await pilot.press("f4")  # (the experiment file's field has the focus: a 4 would be typed into it)
             await until(pilot, lambda: not app.results.busy, "the diagnosis")
@@ -334,3 +334,41 @@ def test_a_crash_exits_non_zero_and_says_what_happened(capsys):
     assert code == 1
     assert err[-1].startswith("rig tui: error: the UI stopped on an unexpected error "
                               "(RuntimeError: boom at the keyboard)"), err[-3:]
+
+
+# -- papercuts (issue 27) ----------------------------------------------------------------------
+
+
+def test_typing_on_the_results_screen_goes_into_the_path_field_and_starts_nothing(slant):
+    """A path set but nothing diagnosed: letters (o, f, u) typed there are the file's name, not commands; a
+    diagnosis (the long work) starts on enter or ctrl+o only."""
+
+    async def go():
+        app = RigApp(connect=False)
+        async with app.run_test(size=(80, 24)) as pilot:
+            app.results.set_path(str(slant))
+            await pilot.press("f4")
+            await pilot.press("end", "o", "u", "f")
+            await pilot.pause()
+            assert app.query_one("#recording-path", Input).value == f"{slant}ouf"
+            assert not app.results.busy and app.results.session.diagnosis is None
+
+    run(go())
+
+
+def test_a_refused_plan_message_goes_when_the_plan_is_fixed(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+
+    async def go():
+        app = RigApp(CAMERA, "fake:", connect=False)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("f2")
+            await type_into(pilot, "frames", "1")
+            await pilot.press("ctrl+r")  # refused: says why on the Experiment screen
+            refusal = app.experiment.status.text
+            assert app.tab == "experiment" and "Frames per stop" in refusal and app.experiment.status.has_class("-error")
+            await type_into(pilot, "frames", "5")
+            assert app.experiment.status.text != refusal and not app.experiment.status.has_class("-error")
+            assert "accepted" in app.experiment.status.text
+
+    run(go())

@@ -3,9 +3,9 @@
 Four screens as tabs (keys 1-4, or F1-F4 which work everywhere): Devices, Experiment, Run, Results.
 Every action has a key in the footer; the footer shows only the actions of the screen in front, and
 hides single-letter keys while a form field has the focus (esc leaves the field). Digits typed while a
-form field has the focus never switch screens. Switching to a screen always puts the focus in the same
-place (`_focus_for`), and the tab bar takes no focus, so a number of Tab presses always reaches the same
-field.
+form field has the focus never switch screens. Work that takes long (a diagnosis) is never on a plain
+letter: typing cannot start it. Switching to a screen always puts the focus in the same place
+(`_focus_for`), and the tab bar takes no focus, so a number of Tab presses always reaches the same field.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ ACTION_TAB = {
 }
 #: actions on plain letter and digit keys: off while a form field has the focus (the field takes the key)
 LETTER_ACTIONS = {"connect", "disconnect", "test_capture", "home", "start_run", "pause", "unpause", "abort",
-                  "resume_run", "open_recording", "refit", "digit_tab"}
+                  "resume_run", "refit", "digit_tab"}
 #: the widgets of a form: while one has the focus, keys are for it
 FORM_FIELDS = (Input, Select, Checkbox)
 
@@ -71,7 +71,7 @@ class RigApp(App):
         Binding("p", "unpause", "Continue"),
         Binding("a", "abort", "Abort"),
         Binding("u", "resume_run", "Resume file"),
-        Binding("o", "open_recording", "Open"),
+        Binding("ctrl+o", "open_recording", "Open"),  # a diagnosis (a minute): not a letter a file name contains
         Binding("f", "refit", "Refit"),
         Binding("escape", "leave_field", "Leave field"),
         Binding("ctrl+q", "quit", "Quit", priority=True),
@@ -182,7 +182,7 @@ class RigApp(App):
     def _focus_for(self, tab: str) -> None:
         if tab == "experiment":
             self.query_one("#toml-path", Input).focus()
-        elif tab == "results" and self.results.session.diagnosis is None and not self.results.path:
+        elif tab == "results" and self.results.session.diagnosis is None:  # whatever it holds: typing goes there
             self.query_one("#recording-path", Input).focus()
         elif tab == "results" and self.results.session.diagnosis is not None:
             self.results.query_one("#effects").focus()

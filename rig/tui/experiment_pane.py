@@ -40,6 +40,7 @@ class ExperimentPane(Vertical):
         self._extra: dict = {}
         self._limits = limits
         self._fields = form_fields()  # the catalogue's, as it is when the screen is made
+        self._refused = ""  # the refusal the status line shows, until the plan is fixed
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
@@ -131,6 +132,7 @@ class ExperimentPane(Vertical):
         problems = self.problems()
         if problems:
             self.status.show(problems[0], "error")
+            self._refused = problems[0]
             return None
         return self.settings()
 
@@ -202,6 +204,9 @@ class ExperimentPane(Vertical):
             line.update("\n".join(f"! {p}" for p in problems[:MAX_LINES]) + (f"\n! ... {more} more" if more > 0 else ""))
             line.set_class(True, "-error")
             return
+        if self._refused and self.status.text == self._refused:  # the refusal on show no longer holds
+            self.status.show("the plan is accepted now: ctrl+r runs it", "ok")
+        self._refused = ""
         s, limits = self.settings(), self._limits()
         travel = "" if limits is not None and limits.travel_m is not None else \
             "; stage travel not checked: connect on screen 1 (c)"

@@ -19,7 +19,10 @@ from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, S
 
 
 class ResultsPane(Vertical):
-    """Open (o), check effects (space), refit (f); each refit adds a bar to the headline chart."""
+    """Open (enter in the path field, or ctrl+o: a diagnosis, the long work), check effects (space), refit (f: one
+    fit); each refit adds a bar to the headline chart. Typing is never a command here: the path field has the focus
+    until a recording is diagnosed, opening takes enter or ctrl+o, and a diagnosis that ends while the operator types
+    in a field leaves the focus there."""
 
     class Done(Message):
         def __init__(self, what: str, error: str = "") -> None:
@@ -39,6 +42,7 @@ class ResultsPane(Vertical):
         self.session = ResultsSession()
         self._recording = recording
         self.busy = False
+        self._typed = False  # a field's text changed while the work went on: its end leaves the focus there
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
@@ -48,7 +52,7 @@ class ResultsPane(Vertical):
             yield Label("Effects file", classes="label")
             yield Input("", id="effects-path", compact=True,
                         placeholder="optional: your effects (.py with @effect, docs/effects.md)")
-        yield StatusLine("o opens the recording", id="results-status")
+        yield StatusLine("enter (or ctrl+o) opens the recording", id="results-status")
         with Horizontal(classes="columns"):
             with Vertical(classes="left"):
                 with VerticalScroll(id="fit-box"):
@@ -87,10 +91,10 @@ class ResultsPane(Vertical):
 
     def refit(self) -> None:
         if self.session.diagnosis is None:
-            self.status.show("open a recording first (o)", "error")
+            self.status.show("open a recording first (enter in its path field, or ctrl+o)", "error")
             return
         effects = self.query_one(EffectList).checked()
-        if effects == self.session.effects:
+        if set(effects) == set(self.session.effects):
             self.status.show("nothing changed: check an effect with space, then refit", "info")
             return
         self._start("refit", f"fitting {'+'.join([self.session.base.name if self.session.base else '', *effects])} ...",
@@ -100,7 +104,7 @@ class ResultsPane(Vertical):
         if self.busy:
             self.status.show("busy: wait for the fit to finish", "error")
             return
-        self.busy = True
+        self.busy, self._typed = True, False
         self.status.show(text, "busy")
         self.app.refresh_bindings()
         self._work(what, self.path, effects or [], self.effects_file)
@@ -161,8 +165,13 @@ class ResultsPane(Vertical):
             before = s.history[-2].headline.error_pct
             text = f"{h.change}: headline error {before:.2f} % -> {h.headline.error_pct:.2f} %"
         self.status.show(text, "ok")
-        if all(node.display for node in self.ancestors_with_self if hasattr(node, "display")):
-            self.query_one(EffectList).focus()  # (not while another screen is in front: focusing would switch to this one)
+        shown = all(node.display for node in self.ancestors_with_self if hasattr(node, "display"))
+        if shown and not self._typed:  # (not while another screen is in front: focusing would switch to this one)
+            self.query_one(EffectList).focus()
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        if self.busy:
+            self._typed = True
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         event.stop()

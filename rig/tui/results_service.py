@@ -4,8 +4,11 @@ Everything is `rig diagnose`'s: `ModelData.from_recording`, `diagnose` (fit, ran
 effects, the path, headline error, residuals by range and radius, plain-language summary, and
 when the catalogue leaves something unexplained, the empirical shape of what remains). Effects
 come from the built-in catalogue, installed plugins and an optional effects file the user
-wrote (`rig.models.Catalogue`). Adding an effect is `diagnose(data, base + effects)`; the
-history keeps the headline error after each change so the screen can chart it.
+wrote (`rig.models.Catalogue`). Opening diagnoses the recording once (a fit per candidate
+effect: the slow part). Adding or removing effects is then one fit of `base + effects`, with
+its headline error and residuals; the diagnosis's ranking, summary and shape are kept, so the
+candidate list stays as it was ranked. The history keeps the headline error after each change
+so the screen can chart it.
 """
 
 from __future__ import annotations
@@ -18,10 +21,10 @@ from typing import Callable
 
 import numpy as np
 
-from rig.diagnosis import Diagnosis, Headline, default_model, diagnose
-from rig.models import Catalogue, Model, ModelData
+from rig.diagnosis import Diagnosis, Headline, Residuals, default_model, diagnose, headline, residuals
+from rig.models import Catalogue, Model, ModelData, ModelFit
 from rig.models.empirical import COVARIATES, EmpiricalSigma
-from rig.models.progress import ProgressFn, WorkProgress
+from rig.models.progress import ProgressCounter, ProgressFn, WorkProgress
 from protocols.recording import Recording
 
 from .live import format_duration
@@ -76,12 +79,17 @@ class ShapeCurve:
 
 
 class ResultsSession:
-    """One recording, its data and its diagnosis as the operator adds and removes effects."""
+    """One recording, its data and its diagnosis as the operator adds and removes effects.
+
+    `diagnosis` is the one made when the recording was opened; `fit` and `residuals` are those of the model the
+    operator has now (the diagnosed one until the first refit)."""
 
     def __init__(self) -> None:
         self.path: Path | None = None
         self.data: ModelData | None = None
         self.diagnosis: Diagnosis | None = None
+        self.fit: ModelFit | None = None
+        self.residuals: Residuals | None = None
         self.base: Model | None = None
         self.history: list[HistoryEntry] = []
         self.catalogue = Catalogue.default()
@@ -104,6 +112,7 @@ class ResultsSession:
             notes = rec.notes()
         diag = diagnose(data, source=str(path), catalogue=self.catalogue, progress=progress)
         self.path, self.data, self.diagnosis, self.notes = path, data, diag, notes
+        self.fit, self.residuals = diag.model_fit, diag.residuals
         self.base = default_model(data)
         self.history = [HistoryEntry(diag.model_fit.model.name, diag.model_fit.model.name, diag.model_headline)]
         return diag
@@ -111,33 +120,38 @@ class ResultsSession:
     @property
     def effects(self) -> list[str]:
         """Effects in the current model."""
-        return [] if self.diagnosis is None else [e.name for e in self.diagnosis.model_fit.model.effects]
+        return [] if self.fit is None else [e.name for e in self.fit.model.effects]
 
-    def refit(self, effects: list[str], progress: ProgressFn | None = None) -> Diagnosis:
-        """Fit the base model plus `effects` and diagnose what is still missing."""
+    def refit(self, effects: list[str], progress: ProgressFn | None = None) -> ModelFit:
+        """Fit the base model plus `effects`: one fit, then its headline error and residuals. The diagnosis (its
+        ranked candidates, summary and shape) is kept as it was made when the recording was opened."""
         if self.data is None or self.base is None:
-            raise ValueError("no recording is open; press o to open one")
+            raise ValueError("no recording is open; press ctrl+o to open one")
         known = self.catalogue.effects
         unknown = [e for e in effects if e not in known and not e.startswith("empirical(")]
         if unknown:
             raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(known)}")
         before = self.effects
+        effects = [e for e in before if e in effects] + [e for e in effects if e not in before]  # the model's order
         model = self.catalogue.parse("+".join([self.base.name, *effects]))
-        diag = diagnose(self.data, model, source=str(self.path), catalogue=self.catalogue, max_steps=0,
-                        progress=progress)
-        self.diagnosis = diag
+        counter = ProgressCounter(progress, 2)
+        counter.step(f"fitting {model.name}")
+        fit = model.fit(self.data)
+        counter.step("checking its predictions")
+        score, found = headline(fit, self.data), residuals(fit, self.data)
+        counter.finish()
+        self.fit, self.residuals = fit, found
         added = [e for e in effects if e not in before]
         removed = [e for e in before if e not in effects]
         change = " ".join([f"+ {e}" for e in added] + [f"- {e}" for e in removed]) or "refit"
-        self.history.append(HistoryEntry(change, model.name, diag.model_headline))
-        return diag
+        self.history.append(HistoryEntry(change, model.name, score))
+        return fit
 
     # -- what the screen shows --------------------------------------------------------------
     def fit_rows(self) -> list[FitRow]:
-        d = self.diagnosis
-        if d is None:
+        d, f = self.diagnosis, self.fit
+        if d is None or f is None:
             return []
-        f = d.model_fit
         rows = []
         for name, p in f.model.parameters():
             v = f.values[name]
@@ -150,22 +164,26 @@ class ResultsSession:
         return rows
 
     def bin_rows(self) -> list[BinRow]:
-        d = self.diagnosis
-        if d is None:
+        found = self.residuals
+        if found is None:
             return []
         rows = []
-        for section, b in (("radius", d.residuals.by_radius), ("range", d.residuals.by_range)):
+        for section, b in (("radius", found.by_radius), ("range", found.by_range)):
             for lab, lr, se, fl in zip(b.labels, b.log_ratio, b.se_log, b.flagged):
                 r = float(np.exp(lr))
                 rows.append(BinRow(section, lab, r, 2 * float(se) * r, bool(fl)))
         return rows
 
     def candidate_rows(self) -> list[CandidateRow]:
+        """The diagnosis's candidates as it ranked them, in its order, whatever has been refitted since; those now in
+        the model say so (after any effect of the model the diagnosis did not rank)."""
         d = self.diagnosis
         if d is None:
             return []
-        rows = [CandidateRow(e, None, False, True) for e in self.effects]
-        rows += [CandidateRow(c.effect.name, c.dbic, c.significant, False) for c in d.candidates]
+        model, ranked = self.effects, [c.effect.name for c in d.candidates]
+        rows = [CandidateRow(e, None, False, True) for e in model if e not in ranked]
+        rows += [CandidateRow(c.effect.name, None, False, True) if c.effect.name in model
+                 else CandidateRow(c.effect.name, c.dbic, c.significant, False) for c in d.candidates]
         return rows
 
     def summary(self) -> str:

@@ -186,10 +186,13 @@ class EffectList(SelectionList[str]):
     BINDINGS = [Binding("space", "select", "Add/remove effect")]
 
     def show_rows(self, rows: Sequence[CandidateRow]) -> None:
+        """Show `rows`; the same effects again (after a refit) keep the highlighted line, new ones start at the top."""
+        same = [r.effect for r in rows] == [self.get_option_at_index(i).value for i in range(self.option_count)]
+        keep = self.highlighted if same else None
         self.clear_options()
         self.add_options([(r.prompt(), r.effect, r.in_model) for r in rows])
         if rows:
-            self.highlighted = 0
+            self.highlighted = keep if keep is not None else 0
 
     def checked(self) -> list[str]:
         """Checked effects in list order (those already in the model first)."""
