@@ -27,7 +27,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 from ..models.progress import ProgressFn, WorkProgress
 
@@ -64,9 +64,11 @@ class Trial:
         return self.correct and self.halved and self.within_noise
 
 
-def run_trial(effect: str, seed: int, workdir: Path) -> Trial:
+def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
+    """One blind trial: record the scenario of `seed` hiding `effect` (`scenario`: its size, as
+    `hidden_scenario` takes it: width, frames), diagnose it, and score the diagnosis against the answer."""
     t0 = time.monotonic()
-    sc = hidden_scenario(seed, effect)
+    sc = hidden_scenario(seed, effect, **scenario)
     path = record_scenario(sc, Path(workdir) / f"{effect}-{seed}.h5")
     dg = diagnose(ModelData.from_recording(path), source=str(path))
     want = expected(effect)
