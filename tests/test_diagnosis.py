@@ -60,7 +60,7 @@ def test_simulate_keeps_the_answer_out_of_the_recording(tmp_path, capsys):
 
 def test_diagnose_command_writes_report_and_plots(tmp_path, capsys):
     out = tmp_path / "x.h5"
-    assert main(["simulate", "--seed", "5", "--effect", "censoring", str(out)]) == 0
+    assert main(["simulate", "--seed", "5", "--effect", "censoring", "--width", "53", str(out)]) == 0
     assert main(["diagnose", str(out), "--out", str(tmp_path / "rep")]) == 0
     text = capsys.readouterr().out
     assert "Most likely missing: censoring" in text and "within noise" in text
@@ -72,7 +72,7 @@ def test_diagnose_command_writes_report_and_plots(tmp_path, capsys):
 
 def test_compare_shows_the_error_fall(tmp_path, capsys):
     out = tmp_path / "x.h5"
-    assert main(["simulate", "--seed", "2", "--effect", "slant_range", str(out)]) == 0
+    assert main(["simulate", "--seed", "2", "--effect", "slant_range", "--width", "53", str(out)]) == 0
     capsys.readouterr()
     assert main(["compare", str(out), "--models", "active,active+slant_range", "--no-held-out"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -85,7 +85,7 @@ def test_compare_shows_the_error_fall(tmp_path, capsys):
 
 def test_held_out_score_prefers_the_true_model(tmp_path, capsys):
     out = tmp_path / "x.h5"
-    assert main(["simulate", "--seed", "4", "--effect", "read_noise", str(out)]) == 0
+    assert main(["simulate", "--seed", "4", "--effect", "read_noise", "--width", "53", str(out)]) == 0
     capsys.readouterr()
     assert main(["compare", str(out), "--models", "active,active+read_noise"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -122,7 +122,7 @@ def test_an_effect_that_cannot_be_fitted_is_named_with_its_reason(tmp_path):
             pred.var_m2 = pred.var_m2 * p.gain
 
     out = tmp_path / "x.h5"
-    assert main(["simulate", "--seed", "5", "--effect", "slant_range", str(out)]) == 0
+    assert main(["simulate", "--seed", "5", "--effect", "slant_range", "--width", "53", str(out)]) == 0
     d = ModelData.from_recording(out)
     diag = diagnose(d, source=str(out), catalogue=Catalogue().with_effects([Fragile()], "this test"))
     assert ("fragile", "fragile: no model for a gain other than 1") in diag.steps[0].not_fitted

@@ -155,7 +155,7 @@ def test_adding_the_missing_effect_lowers_the_headline_error(slant_recording, mo
 def beam_recording(tmp_path_factory) -> Path:
     """A small simulated run hiding a cos^n beam fall-off, which the catalogue lacks."""
     out = tmp_path_factory.mktemp("beam") / "beam.h5"
-    return record_scenario(hidden_scenario(3, "beam_falloff", width=60, frames=40), out)
+    return record_scenario(hidden_scenario(3, "beam_falloff", width=40, frames=30), out)
 
 
 def test_not_explained_shows_its_shape_then_the_users_effect_explains_it(beam_recording):
