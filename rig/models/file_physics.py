@@ -55,6 +55,8 @@ def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, n
     on [max(a, -c), min(c, 8)] (c the censoring cut, 8 without). Returns whether any pixel was near."""
     any_near = False
     inv_root_2pi = 1.0 / math.sqrt(2.0 * math.pi)
+    w_at = np.empty(nodes.size)  # a near pixel's quadrature weights and ranges, made once for both passes
+    z_at = np.empty(nodes.size)
     for i in range(var_lin.size):
         z = z0[i]
         v = var_lin[i]
@@ -77,18 +79,18 @@ def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, n
         for j in range(nodes.size):
             x = mid + half * nodes[j]
             w = half * weights[j] * math.exp(-0.5 * x * x) * inv_root_2pi
+            den = max(d0 + sigma_d * x, 1e-12)
+            w_at[j], z_at[j] = w, fb / den
             mass += w
-            total += w * fb / max(d0 + sigma_d * x, 1e-12)
+            total += w * fb / den
         mass = max(mass, 1e-300)
         mean = total / mass
         m2 = m4 = 0.0
         for j in range(nodes.size):
-            x = mid + half * nodes[j]
-            w = half * weights[j] * math.exp(-0.5 * x * x) * inv_root_2pi
-            dev = fb / max(d0 + sigma_d * x, 1e-12) - mean
+            dev = z_at[j] - mean
             dev2 = dev * dev
-            m2 += w * dev2
-            m4 += w * dev2 * dev2
+            m2 += w_at[j] * dev2
+            m4 += w_at[j] * dev2 * dev2
         var_near = m2 / mass
         var_out[i] = var_near
         k4_out[i] = m4 / mass - 3.0 * var_near * var_near
