@@ -57,7 +57,7 @@ def test_diagnose_shows_one_updating_line_on_a_terminal(recording, tmp_path):
     assert "\n" not in err  # one line, redrawn in place
     frames = [f.removesuffix("\x1b[K") for f in err.split("\r") if f and f != "\x1b[K"]
     assert len(frames) >= 5
-    shapes = [re.fullmatch(r"rig diagnose \[[#.]{14}\] (\d+)/(\d+) \d+:\d\d(, about \d+:\d\d left)?: (.+)", f) for f in frames]
+    shapes = [re.fullmatch(r"rig diagnose \[[#.]{14}\] (\d+)/(\d+) \d+:\d\d(, (?:about|at least) \d+:\d\d left)?: (.+)", f) for f in frames]
     assert all(shapes), frames
     tasks = [m.group(4) for m in shapes]
     assert tasks[0] == "reading the recording" and "fitting active" in tasks
@@ -106,3 +106,22 @@ def test_a_run_on_a_terminal_shows_frames_and_the_time_left(tmp_path):
     bars = [f for f in err.split("\r") if "frames" in f]
     assert any(re.search(r"\[ 2/3\]   1\.000m #+\.* \d+/12 frames, about \d+:\d\d left", b) for b in bars), bars
     assert re.search(r"\[ 1/3\]   0\.500m done: .*\(\s*\d+\.\d s, about \d+:\d\d left\)", err)
+
+
+def test_a_time_left_is_a_lower_bound_while_the_diagnosis_may_still_add_steps(tmp_path):
+    """A diagnosis learns its steps as it goes (a second effect, empirical terms), so a time left from the steps
+    counted so far runs low. Every report that does not say more may come (`more_may_come`, shown as 'at
+    least') has a total no later report exceeds."""
+    from rig.diagnosis import diagnose
+    from rig.models import ModelData
+    from rig.simulation.scenarios import hidden_scenario, record_scenario
+
+    path = record_scenario(hidden_scenario(1000, "slant_range+noise_floor", width=30, frames=20), tmp_path / "pair.h5")
+    reports = []
+    diagnose(ModelData.from_recording(path), progress=reports.append)
+    totals = [r.total for r in reports]
+    assert max(totals) > totals[0], totals  # the work grew as it went: the case that ran low
+    for i, r in enumerate(reports):
+        if not r.more_may_come:
+            assert max(totals[i:]) <= r.total, (i, r, totals)
+    assert reports[0].more_may_come and not reports[-1].more_may_come

@@ -213,11 +213,14 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
     model = model or default_model(d)
     # the steps known now: the model, the power law, one fit per candidate effect, the residuals
     counter = ProgressCounter(progress, 3 + len(applicable_candidates(model, d, catalogue)))
+    counter.more_may_come = True  # until the model's fit says whether it is within noise
     counter.step(f"fitting {model.name}")
     fit = model.fit(d)
+    steps = [Step(fit, headline(fit, d))]
+    # beyond noise, the diagnosis may add effects and empirical terms: steps not counted yet
+    counter.more_may_come = not steps[0].headline.within_noise and (max_steps > 0 or explain)
     counter.step("fitting power_law")
     pl = fit_power_law(d)  # the paper's fit, for reference: closed form
-    steps = [Step(fit, headline(fit, d))]
     steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter, jobs=jobs,
                                           not_fitted=steps[0].not_fitted)  # shown even when nothing is missing
     while not steps[-1].headline.within_noise and len(steps) <= max_steps:
@@ -234,9 +237,11 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
             break  # significant, but it leaves what is wrong where it was: not the missing effect
         best.fit = with_errors(best.fit, d)
         steps.append(Step(best.fit, after, best, equivalent))
+        counter.more_may_come = not after.within_noise and (len(steps) <= max_steps or explain)
     unexplained = None
     if explain and not steps[-1].headline.within_noise:
         unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter, jobs=jobs)
+    counter.more_may_come = False
     counter.step("residuals")
     result = Diagnosis(source, d, steps, pl, residuals(fit, d), unexplained)
     counter.finish()

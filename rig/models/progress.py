@@ -9,8 +9,9 @@ Work that takes more than a moment takes an optional `progress` callable and cal
     diagnose(data, progress=show)
 
 `total` is the number of steps expected in all; it is an estimate and may grow while the work
-goes on (a diagnosis does not know in advance how many effects it will add). `done == total`
-with `finished` set means the work is over.
+goes on (a diagnosis does not know in advance how many effects it will add): `more_may_come` says
+when it still may, so a time left is a lower bound then. `done == total` with `finished` set means
+the work is over.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ class WorkProgress:
     done: int  # steps finished
     total: int  # steps expected in all (an estimate; may grow)
     finished: bool = False
+    more_may_come: bool = False  # the work may still find steps it has not counted (total may grow)
 
     @property
     def fraction(self) -> float:
@@ -43,12 +45,14 @@ class ProgressCounter:
         self.progress = progress
         self.total = max(1, total)
         self.done = 0
+        #: whether steps not counted yet may still come (the work sets it as it learns; see WorkProgress)
+        self.more_may_come = False
 
     def step(self, task: str) -> None:
         """A step begins: report it with the steps finished so far, then count it as done."""
         if self.progress is not None:
             self.total = max(self.total, self.done + 1)
-            self.progress(WorkProgress(task, self.done, self.total))
+            self.progress(WorkProgress(task, self.done, self.total, more_may_come=self.more_may_come))
         self.done += 1
 
     def expect(self, more: int) -> None:

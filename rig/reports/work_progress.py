@@ -118,7 +118,7 @@ class WorkProgressLine:
         if p.done > 0:
             per_step = (self.step_t0 - self.t0) / p.done
             left = max(per_step * (p.total - p.done) - (now - self.step_t0), 0.0)
-            text += f", about {clock(left)} left"
+            text += f", {'at least' if p.more_may_come else 'about'} {clock(left)} left"  # lower bound while steps may come
         return f"{text}: {p.task}"  # the task last: a narrow terminal cuts it, not the numbers
 
     def _draw(self, now: float) -> None:

@@ -216,7 +216,10 @@ class ProgressText:
         self.started = clock()
 
     def text(self, p: WorkProgress) -> str:
+        """While the work may still add steps (`more_may_come`: a diagnosis beyond noise may add effects), the
+        steps and the time left are lower bounds and say so ("at least")."""
         elapsed = self.clock() - self.started
         left = elapsed / p.done * (p.total - p.done) if p.done > 0 else None
-        return (f"{self.what}: {p.task}, step {min(p.done + 1, p.total)} of {p.total} ({100 * p.fraction:.0f} %), "
-                f"{format_duration(elapsed)} so far, about {format_duration(left)} left")
+        of, about = ("at least ", "at least ") if p.more_may_come else ("", "about ")
+        return (f"{self.what}: {p.task}, step {min(p.done + 1, p.total)} of {of}{p.total} ({100 * p.fraction:.0f} %), "
+                f"{format_duration(elapsed)} so far, {about}{format_duration(left)} left")
