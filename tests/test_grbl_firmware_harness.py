@@ -309,8 +309,8 @@ def test_a_dropped_byte_never_reaches_the_firmware(client, stock):
 
 
 def test_a_stalled_link_forwards_nothing_then_delivers_what_it_held(client, stock):
+    t0 = time.monotonic()  # before the stall begins: it ends 0.6 s after its own start, which is after t0
     stock.stall(0.6)
-    t0 = time.monotonic()
     client.send(b"$I\n")
     assert client.line(timeout_s=0.45) == b""
     lines = client.until(r"^ok$")
