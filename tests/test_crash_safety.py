@@ -84,10 +84,15 @@ def test_a_kill_while_raw_frames_are_written_loses_nothing_reported_done(tmp_pat
 
 
 def test_kills_at_random_instants(tmp_path):
-    t0 = time.monotonic()
-    code, _ = child(tmp_path / "whole.h5")
-    whole_s = time.monotonic() - t0
-    assert code == 0
+    # how long a whole run takes: the faster of two, since the first in a fresh clone also compiles (numba's
+    # cache is empty) and would put every instant late
+    times = []
+    for name in ("whole.h5", "whole-again.h5"):
+        t0 = time.monotonic()
+        code, _ = child(tmp_path / name)
+        times.append(time.monotonic() - t0)
+        assert code == 0
+    whole_s = min(times)
     rng = random.Random(14)
     kills = 0
     for trial in range(8):
