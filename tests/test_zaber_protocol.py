@@ -58,6 +58,9 @@ def test_official_library_detects_homes_moves_and_reads_with_checksums():
         assert axis.settings.get("resolution") == 64
         assert int(device.generic_command("get deviceid").data) == sim.device_id
         assert axis.warnings.get_flags() == set()
+        deadline = time.monotonic() + 5.0  # the library hands alerts over on its own thread: wait for them
+        while len(alerts) < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert len(alerts) >= 3 and all(a.status == "IDLE" for a in alerts)  # home and both moves ended
         # every command it sent carried a message id and a valid checksum
         framed = [c for c in sim.commands if c.startswith("/")]
