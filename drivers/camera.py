@@ -181,6 +181,9 @@ class DepthCamera(abc.ABC):
 
     #: a short name for progress lines and errors
     name: str = "camera"
+    #: a recording played back (a file, a bag): its settings are what they were when it was made and cannot be
+    #: changed, so the runner records them as they were, with a note, instead of refusing them (issue 31)
+    plays_back: bool = False
 
     def __enter__(self) -> "DepthCamera":
         self.open()

@@ -245,12 +245,17 @@ class Recording:
                            f"{', ...' if len(missing) > 5 else ''}); rig run ... --resume records the rest")
         elif "ended_utc" not in self.attrs and not self.in_progress and labels:
             out.append("the run did not finish (no ended_utc); rig run ... --resume records the rest")
-        lost = []
+        lost, as_recorded = [], {}
         for label in labels:
             a = self._group(label).attrs
             dropped, repeated = int(a.get("frames_dropped", 0)), int(a.get("frames_duplicated", 0))
             if dropped or repeated:
                 lost.append(f"{label} {dropped} dropped, {repeated} duplicated")
+            if a.get("settings_as_recorded"):
+                as_recorded.setdefault(str(a["settings_as_recorded"]), []).append(label)
+        for said, where in as_recorded.items():
+            stops = "every stop" if len(where) == len(labels) else ", ".join(where[:5]) + (", ..." if len(where) > 5 else "")
+            out.append(f"played back from a recording, whose settings are as it was made ({stops}): {said}")
         if lost:
             out.append("frames lost or repeated on the way (duplicates left out): " + "; ".join(lost[:5])
                        + ("; ..." if len(lost) > 5 else ""))

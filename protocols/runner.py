@@ -252,6 +252,11 @@ class Runner:
     def _configure(self, requested: CameraSettings) -> CameraSettings:
         got = self.camera.configure(requested)
         bad = settings_mismatch(requested, got)
+        if bad and self.camera.plays_back:
+            # a recording cannot be changed: take it as it was made and say so in every stop (as_recorded_note)
+            self.progress(ProgressEvent("message", text=f"{self.camera.name} plays back a recording; its settings are "
+                                                        f"as it was made: {', '.join(bad)}; recorded as such"))
+            return got
         if bad:
             raise CameraError(f"{self.camera.name}: settings read back differ from the request: {', '.join(bad)}; "
                               "check that the camera supports them (and that nothing else controls it)")
@@ -267,7 +272,8 @@ class Runner:
             for frame in self.camera.frames(n - accepted, ir=ir):
                 if not continuity.check(frame.frame_number, frame.timestamp_ms):
                     continue  # the same frame again: no new sample
-                bad = settings_mismatch(requested, frame.metadata)
+                # a recording's frames are as they were made: each keeps its own settings (its series records them)
+                bad = [] if self.camera.plays_back else settings_mismatch(requested, frame.metadata)
                 if bad and not settled and stale < MAX_STALE_FRAMES:
                     stale += 1
                     continue
@@ -350,7 +356,8 @@ class Runner:
         writer.end_stop(
             g, stats=stats, series=FrameSeries(**series), ir_mean=ir_acc.result(), ambient_ir_mean=ambient,
             extra_attrs={"frames_refused": refused, "frames_dropped": continuity.dropped,
-                         "frames_duplicated": continuity.duplicated, "measured_position_end_m": measured_end},
+                         "frames_duplicated": continuity.duplicated, "measured_position_end_m": measured_end,
+                         **self._as_recorded(requested, series)},
         )
         c = stats.count[cy, cx] > 1
         sigma_c = float(np.sqrt(np.mean(stats.variance_m2[cy, cx][c]))) if c.any() else float("nan")
@@ -360,6 +367,19 @@ class Runner:
                                              "center_mean_m": mean_c,
                                              "position_m": measured_m, "frames_dropped": continuity.dropped,
                                              "frames_duplicated": continuity.duplicated}))
+
+    def _as_recorded(self, requested: CameraSettings, series: dict[str, np.ndarray]) -> dict[str, str]:
+        """For a recording played back: how its settings differ from the request, as a stop attribute
+        (`settings_as_recorded`, shown by Recording.notes); {} for a live camera or when nothing differs."""
+        if not self.camera.plays_back:
+            return {}
+        got = self.camera.read_settings()
+        said = settings_mismatch(requested, got)
+        exposure = series["exposure_us"][np.isfinite(series["exposure_us"])]
+        if got.auto_exposure and exposure.size:
+            said = [s for s in said if not s.startswith("exposure ")]
+            said.append(f"exposure per frame {exposure.min():g}-{exposure.max():g} us (the frames' metadata)")
+        return {"settings_as_recorded": "; ".join(said)} if said else {}
 
     def _ambient(self, requested: CameraSettings, n: int) -> np.ndarray | None:
         """Mean IR image with the projector off: the ambient light level at this stop."""

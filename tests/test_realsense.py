@@ -240,6 +240,7 @@ def test_settings_are_read_back_from_the_device_and_long_exposures_warn():
                                                                 "SW-D435-0001", "5.16.0.1")
             assert info.extra["usb_type"] == "3.2" and info.extra["baseline_source"].startswith("extrinsics")
             assert info.extra["options"]["Gain"] == 16.0  # options as they were at open
+            assert info.extra["post_processing"].startswith("none")  # the driver applies no processing block
 
 
 @pytest.mark.parametrize("clock", ["host", "device"])
@@ -449,3 +450,52 @@ def test_projector_check_through_the_sdk_sees_the_pattern_come_and_go():
     assert contrast_changed(on, off) and on.ir_contrast > 0.5
     same = ProjectorCheck(False, 1, 1.0, 1.0, 8500, 16, CameraSettings(), on.ir_contrast, 50.0, on.mean_depth_m)
     assert not contrast_changed(on, same)
+
+
+def test_a_recording_made_with_auto_exposure_plays_back_as_it_was_made_with_a_note(tmp_path):
+    """A recording cannot be changed: played back, its settings are taken as recorded (auto-exposure on, the
+    exposure of each frame from its metadata) and every output says so; a live camera still refuses them."""
+    from fakes.realsense_software import CAMERA_DEFAULTS
+    from fakes.world import FakeWorld
+
+    assert CAMERA_DEFAULTS.auto_exposure  # the SDK device starts as a camera out of the box: auto-exposure on
+    bag = tmp_path / "auto.db3"
+    sw = _software(FakeWorld.perpendicular(1.2), initial=PLAN)
+    with sw:
+        with sw.camera(width=W, height=H, record=bag) as cam:
+            cam.configure(CAMERA_DEFAULTS)
+            list(cam.frames(30))
+    devices = open_devices(f"realsense:file={bag}", "none:")
+    messages = []
+    plan = perpendicular(stops_m=[1.2], frames_per_stop=20)  # asks for auto-exposure off, as every plan does
+    assert not plan.params.get("auto_exposure", False)
+    Runner(devices.camera, devices.stage, sleep=lambda s: None,
+           progress=lambda e: messages.append(e.text)).run(plan, tmp_path / "played.h5")
+    assert any("plays back a recording" in m and "auto-exposure on (asked off)" in m for m in messages), messages
+    with Recording(tmp_path / "played.h5") as rec:
+        (stop,) = list(rec.stops())
+        assert stop.settings_read_back["auto_exposure"] is True
+        exposure, numbers = stop.series.exposure_us, stop.series.frame_number
+        notes = rec.notes()
+    # each frame's exposure is its own, as the file's metadata say (read here with the SDK's own pipeline)
+    rs = _rs()
+    pipe, cfg = rs.pipeline(), rs.config()
+    cfg.enable_device_from_file(str(bag), False)
+    pipe.start(cfg).get_device().as_playback().set_real_time(False)
+    in_file = {}
+    try:
+        while True:
+            ok, fs = pipe.try_wait_for_frames(1000)
+            if not ok:
+                break
+            d = fs.get_depth_frame()
+            if d and d.supports_frame_metadata(rs.frame_metadata_value.actual_exposure):
+                in_file[d.get_frame_number()] = d.get_frame_metadata(rs.frame_metadata_value.actual_exposure)
+    finally:
+        pipe.stop()
+    assert [in_file[int(n)] for n in numbers] == exposure.tolist()
+    assert set(exposure.tolist()) != {PLAN.exposure_us}  # the SDK device's auto-exposure chose its own
+    (note,) = [n for n in notes if n.startswith("played back from a recording")]
+    assert "auto-exposure on (asked off)" in note, note
+    assert f"exposure per frame {exposure.min():g}-{exposure.max():g} us" in note, note
+    assert note in fit_recording(tmp_path / "played.h5").notes

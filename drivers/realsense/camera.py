@@ -105,6 +105,7 @@ class RealSenseCamera(DepthCamera):
         self._pending: dict[int, dict[str, Any]] = {}
         if self.file is not None:
             self.name = f"realsense file {self.file.name}"
+            self.plays_back = True  # settings as recorded (auto-exposure included), noted by the runner
         elif serial:
             self.name = f"realsense {serial}"
 

@@ -37,6 +37,9 @@ def read_info(rs: Any, dev: Any, sensor: Any, depth_profile: Any, ir_profile: An
         "ir_stream": "left y8" if ir_profile is not None else "off",
         "distortion": {"model": str(intr.model).split(".")[-1], "coeffs": [float(c) for c in intr.coeffs]},
         "baseline_source": source,
+        # librealsense's post-processing blocks (rs.decimation_filter, spatial, temporal, hole filling) run on the
+        # host only when a program applies them; the driver applies none: depth is the camera's raw Z16 (issue 31)
+        "post_processing": "none: no librealsense processing block applied (raw Z16 depth)",
     }
     for key in ("usb_type_descriptor", "product_line", "product_id", "camera_locked", "firmware_update_id",
                 "asic_serial_number", "physical_port"):
