@@ -11,13 +11,13 @@ Device strings:
     oak:search=3                           seconds to look for devices
 
 The pipeline: the left (CAM_B) and right (CAM_C) mono cameras feed a StereoDepth node with
-the preset, subpixel, left-right check and confidence threshold given, median filter off,
-depth aligned to the left camera, in millimetres. The IR flood light stays off; the dot
-projector's intensity is set with the projector on and 0 with it off. Exposure and ISO are
-set manually through CameraControl on both cameras; each frame's exposure and sensitivity
-are read back from the left camera's frame (StereoDepth's syncedLeft output), paired with
-the depth frame by sequence number. The OAK reports no per-frame projector state, so a
-frame's projector flag is the intensity last set (docs/hardware.md).
+the preset, subpixel, left-right check and confidence threshold given, every post-processing filter
+off whatever the preset (RAW_FILTERS, read back and recorded), depth aligned to the left camera, in
+millimetres. The IR flood light stays off; the dot projector's intensity is set with the projector
+on and 0 with it off. Exposure and ISO are set manually through CameraControl on both cameras; each
+frame's exposure and sensitivity are read back from the left camera's frame (StereoDepth's
+syncedLeft output), paired with the depth frame by sequence number. The OAK reports no per-frame
+projector state, so a frame's projector flag is the intensity last set (docs/hardware.md).
 
 Gain is given in rig's unit (16 = x1) like on every camera, and set as the sensors' ISO (100 = x1, up to
 1600: `OAK_GAIN`), so the default plan's 16 is ISO 100; the frames' ISO is reported back in rig's unit.
@@ -51,6 +51,11 @@ OAK_GAIN = GainScale("ISO", 100.0, (100.0, 1600.0))
 EXPOSURE_RANGE_US = (20, 33000)
 #: frames to wait after a settings change for the frames to report them
 SETTLE_FRAMES = 30
+#: StereoDepthConfig.postProcessing with each filter off, as stereo_settings reads it back: threshold 0-65535 mm passes
+#: all uint16 depth; brightness 0-256, depthai's default, invalidates only pixels of brightness 0 (docs/hardware.md)
+RAW_FILTERS = {"median_filter": "MEDIAN_OFF", "bilateral_sigma": 0, "temporal_filter": False, "spatial_filter": False,
+               "speckle_filter": False, "decimation_factor": 1, "threshold_filter_mm": [0, 65535],
+               "brightness_filter": [0, 256], "hole_filling": False, "adaptive_median_filter": False}
 #: the device-string options (docs/hardware.md); `oak://ID` is id=
 OAK_OPTIONS = OptionTable("oak", "camera", (
     Option("id", str, None, None, "", "the device id, IP address or USB path of the OAK to open",
@@ -140,18 +145,27 @@ def exposure_control(settings: CameraSettings) -> Any:
 
 
 def apply_stereo_settings(cfg: Any, *, confidence: int, subpixel: bool, lr_check: bool) -> None:
-    """Set a StereoDepthConfig as the rig measures: median filter off, depth in millimetres."""
+    """Set a StereoDepthConfig as the rig measures, raw, whatever the preset set: every post-processing
+    filter off (RAW_FILTERS), depth in millimetres."""
     import depthai as dai
 
     cfg.setConfidenceThreshold(int(confidence))
     cfg.setSubpixel(bool(subpixel))
     cfg.setLeftRightCheck(bool(lr_check))
     cfg.setMedianFilter(dai.StereoDepthConfig.MedianFilter.MEDIAN_OFF)
+    cfg.setBilateralFilterSigma(0)
+    pp = cfg.postProcessing
+    for f in (pp.temporalFilter, pp.spatialFilter, pp.speckleFilter, pp.holeFilling, pp.adaptiveMedianFilter):
+        f.enable = False
+    pp.decimationFilter.decimationFactor = 1
+    pp.thresholdFilter.minRange, pp.thresholdFilter.maxRange = RAW_FILTERS["threshold_filter_mm"]
+    pp.brightnessFilter.minBrightness, pp.brightnessFilter.maxBrightness = RAW_FILTERS["brightness_filter"]
     cfg.setDepthUnit(dai.LengthUnit.MILLIMETER)
 
 
 def stereo_settings(cfg: Any, preset: str) -> dict[str, Any]:
-    """What a StereoDepthConfig holds, read back, for the recording."""
+    """What a StereoDepthConfig holds, read back, for the recording: every post-processing filter included."""
+    pp = cfg.postProcessing
     return {
         "preset": preset,
         "subpixel": bool(cfg.getSubpixel()),
@@ -160,9 +174,27 @@ def stereo_settings(cfg: Any, preset: str) -> dict[str, Any]:
         "lr_check_threshold": int(cfg.getLeftRightCheckThreshold()),
         "confidence_threshold": int(cfg.getConfidenceThreshold()),
         "median_filter": str(cfg.getMedianFilter()).split(".")[-1],
+        "bilateral_sigma": int(cfg.getBilateralFilterSigma()),
+        "temporal_filter": bool(pp.temporalFilter.enable),
+        "spatial_filter": bool(pp.spatialFilter.enable),
+        "speckle_filter": bool(pp.speckleFilter.enable),
+        "decimation_factor": int(pp.decimationFilter.decimationFactor),
+        "threshold_filter_mm": [int(pp.thresholdFilter.minRange), int(pp.thresholdFilter.maxRange)],
+        "brightness_filter": [int(pp.brightnessFilter.minBrightness), int(pp.brightnessFilter.maxBrightness)],
+        "hole_filling": bool(pp.holeFilling.enable),
+        "adaptive_median_filter": bool(pp.adaptiveMedianFilter.enable),
+        "filtering_order": [str(f).split(".")[-1] for f in pp.filteringOrder],
         "extended_disparity": bool(cfg.getExtendedDisparity()),
         "depth_unit": str(cfg.getDepthUnit()).split(".")[-1],
     }
+
+
+def check_raw(settings: dict[str, Any], name: str = "oak") -> None:
+    """Refuse, in one line, stereo settings read back with a post-processing filter not off."""
+    on = [f"{k}={settings.get(k)}" for k, off in RAW_FILTERS.items() if settings.get(k) != off]
+    if on:
+        raise CameraError(f"{name}: StereoDepth post-processing read back on after the driver set it off ({', '.join(on)}); "
+                          "the rig measures raw depth: install the depthai release docs/hardware.md was tested with")
 
 
 def frame_metadata(msg: Any, *, projector_on: bool, auto_exposure: bool) -> FrameMetadata:
@@ -282,6 +314,7 @@ class OakCamera(DepthCamera):
         stereo.setLeftRightCheck(self.lr_check)
         apply_stereo_settings(stereo.initialConfig, confidence=self.confidence, subpixel=self.subpixel, lr_check=self.lr_check)
         self._stereo_settings = stereo_settings(stereo.initialConfig, self.preset)
+        check_raw(self._stereo_settings, self.name)
         self._queues = {"depth": stereo.depth.createOutputQueue(maxSize=8, blocking=False),
                         "left": stereo.syncedLeft.createOutputQueue(maxSize=8, blocking=False)}
         self._controls = [c.inputControl.createInputQueue() for c in cams]
