@@ -210,17 +210,20 @@ class Terminal:
             time.sleep(step.seconds)
             return self._lines(0.0, 0.0)
         kept: list[str] = []
+        last_report = None
         end = time.monotonic() + step.timeout_s
         while time.monotonic() < end:
             self.port.write(b"?")
             for text in self._lines(0.05, 1.0):
                 if text.startswith("<"):
+                    last_report = text
                     if text[1:].split("|", 1)[0] == step.state:
                         return [*kept, masked(text, step.timed)]
                 elif text:
                     kept.append(text)
             time.sleep(0.05)
-        raise AssertionError(f"no report with state {step.state} within {step.timeout_s} s; other lines: {kept}")
+        raise AssertionError(f"no report with state {step.state} within {step.timeout_s} s; last report: "
+                             f"{last_report}; other lines: {kept}")
 
 
 def transcript(port: str, steps: list[Send | Until | Pause]) -> str:
