@@ -86,6 +86,10 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
 def _check_paths(src: Path, out: Path) -> None:
     if not src.is_dir():
         raise FolderImportError(f"{src} is not a folder; pass the folder that holds one sub-folder per stop")
+    _check_paths_out(out)
+
+
+def _check_paths_out(out: Path) -> None:
     if out.exists():
         raise FolderImportError(f"{out} already exists; choose another output file")
 

@@ -378,6 +378,8 @@ class Runner:
         exposure = series["exposure_us"][np.isfinite(series["exposure_us"])]
         if got.auto_exposure and exposure.size:
             said = [s for s in said if not s.startswith("exposure ")]
+            if not any(s.startswith("auto-exposure") for s in said):
+                said.append("auto-exposure on")
             said.append(f"exposure per frame {exposure.min():g}-{exposure.max():g} us (the frames' metadata)")
         return {"settings_as_recorded": "; ".join(said)} if said else {}
 

@@ -89,14 +89,14 @@ def stop_distance_m(folder: Path, settings: ImportSettings) -> float:
         raise FolderImportError(f"{folder}: no distance for this stop; add it to [stop_distance_m] in {MANIFEST_NAME} "
                                 "or set stop_distance_from_name, e.g. \"(?P<m>[0-9.]+)m\"")
     match = re.search(pattern, folder.name)
-    value = _distance_from_match(match)
+    value = distance_from_match(match)
     if value is None:
         raise FolderImportError(f"{folder}: the name does not give a distance by stop_distance_from_name = {pattern!r}; "
                                 f"rename the folder or add it to [stop_distance_m] in {MANIFEST_NAME}")
     return value
 
 
-def _distance_from_match(match: re.Match | None) -> float | None:
+def distance_from_match(match: re.Match | None) -> float | None:
     """Metres from group 'm', millimetres from group 'mm', else metres from the first group or the whole match."""
     if match is None:
         return None
@@ -154,7 +154,7 @@ def check_depth_unit(stop: StopSource, depth_unit_m: float) -> None:
     """Refuse a depth unit that puts the stop's first valid frame more than 20 % from its distance."""
     with contextlib.closing(stop.frames()) as frames:
         for depth, path in frames:
-            counts = _center_counts(depth)
+            counts = center_counts(depth)
             if counts is not None:
                 break
         else:
@@ -167,7 +167,7 @@ def check_depth_unit(stop: StopSource, depth_unit_m: float) -> None:
         f"{stop.distance_m:g} m; {suggest_depth_unit(counts, stop.distance_m)}")
 
 
-def _center_counts(depth: np.ndarray) -> float | None:
+def center_counts(depth: np.ndarray) -> float | None:
     """Mean valid depth count in the central region (or the whole frame if the centre has none)."""
     for region in (depth[center_box(depth.shape)], depth):
         valid = region[region > 0]

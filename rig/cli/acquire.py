@@ -45,9 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     from drivers.folder.manifest import MANIFEST_NAME
 
-    p = sub.add_parser("import", help="turn folders of depth frames (16-bit PNG or .npy) into a recording (docs/import.md)",
-                       description="Turn folders of depth frames (16-bit PNG or .npy) into a recording; see docs/import.md.")
-    p.add_argument("folder", metavar="DIR", help=f"folder with one sub-folder per stop and {MANIFEST_NAME}")
+    p = sub.add_parser("import", help="turn bags or folders of depth frames into a recording (docs/import.md)",
+                       description="Turn a RealSense or ROS 1/ROS 2 bag (.bag, .db3, .mcap), a folder of bags (one per "
+                                   "stop), or folders of depth frames (16-bit PNG or .npy) into a recording; see docs/import.md.")
+    p.add_argument("folder", metavar="SOURCE", help=f"a bag, a folder of bags, or a folder with one sub-folder per stop and {MANIFEST_NAME}")
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="recording to write")
     p.add_argument("--fx", type=float, help="focal length, px (overrides the manifest)")
     p.add_argument("--fy", type=float, help="focal length, px")
@@ -58,7 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--projector", choices=["on", "off"], help="was the IR projector on")
     p.add_argument("--exposure-us", type=float)
     p.add_argument("--gain", type=float)
-    p.add_argument("--stop-distance-from-name", metavar="REGEX", help='read distances from folder names, e.g. "(?P<m>[0-9.]+)m"')
+    p.add_argument("--stop-distance-from-name", metavar="REGEX", help='read distances from folder (or bag) names, e.g. "(?P<m>[0-9.]+)m"')
+    p.add_argument("--distance-m", type=float, metavar="Z", help="a single bag's camera-to-wall distance, m")
+    p.add_argument("--topic", help="a bag's depth image topic, when it has several (e.g. /camera/depth/image_rect_raw)")
     p.set_defaults(func=cmd_import)
 
 
@@ -181,6 +184,18 @@ def import_overrides(args: argparse.Namespace) -> dict[str, Any]:
     return {k: v for k, v in o.items() if v is not None}
 
 
+def bag_source(path: Path) -> bool:
+    """A bag, or a folder of bags without sub-folders of frames, is imported as bags (protocols.bag_import)."""
+    from drivers.bag import is_bag
+
+    if is_bag(path):
+        return True
+    if not path.is_dir():
+        return path.suffix.lower() in (".bag", ".db3", ".mcap")
+    entries = [p for p in path.iterdir() if not p.name.startswith(".")]
+    return any(is_bag(p) for p in entries) and not any(p.is_dir() and not is_bag(p) for p in entries)
+
+
 def cmd_import(args: argparse.Namespace) -> int:
     """`rig import` once its arguments are parsed; errors raise FolderImportError."""
     from protocols.folder_import import import_folder
@@ -188,7 +203,19 @@ def cmd_import(args: argparse.Namespace) -> int:
     from ..reports.progress import TerminalProgress
 
     progress = None if verbosity(args) == QUIET else TerminalProgress()
-    out = import_folder(args.folder, args.output, import_overrides(args), progress=progress)
+    if bag_source(Path(args.folder)):
+        from protocols.bag_import import import_bags
+
+        out = import_bags(args.folder, args.output, import_overrides(args), progress=progress, topic=args.topic,
+                          distance_m=args.distance_m)
+    elif args.distance_m is not None or args.topic is not None:
+        from drivers.errors import FolderImportError
+        from drivers.folder.manifest import MANIFEST_NAME
+
+        raise FolderImportError(f"{args.folder}: --distance-m and --topic are for bags; a folder of frames names its "
+                                f"stops' distances in {MANIFEST_NAME} (see docs/import.md)")
+    else:
+        out = import_folder(args.folder, args.output, import_overrides(args), progress=progress)
     print(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})")
     return 0
 
