@@ -18,7 +18,7 @@ from drivers.options import AT_LEAST_0, Check, Option, OptionTable, below, betwe
 
 from .effects import Effect, parse_effects
 from .kinds import EXPOSURE_RANGE_US, GAIN
-from .render import depth_from_disparity, depth_from_noise, ir_from_uniform
+from .render import depth_from_disparity, depth_from_noise, ir_from_uniform, temporal_filter
 from .physics import NATIVE_FX_PX, NATIVE_WIDTH, FrameContext, SensorPhysics, StopField, base_truth, build_field
 from .world import FakeWorld
 
@@ -43,6 +43,9 @@ FAKE_CAMERA_OPTIONS = OptionTable("fake", "camera", (
            "day: room light on the wall; night: the projector only; auto: night if first configured with it on"),
     Option("drop", float, 0.0, below(0, 1), "", "probability that a frame is lost", example=0.01),
     Option("duplicate", float, 0.0, below(0, 1), "", "probability that a frame is handed over twice", example=0.01),
+    Option("temporal_alpha", float, None, between(0.01, 1), "",
+           "a temporal post-filter (RealSense/OAK-D style): out = alpha in + (1 - alpha) previous out", example=0.4,
+           absent="off"),
 ), error=CameraError)
 
 
@@ -55,6 +58,8 @@ class FakeCamera(DepthCamera):
         must not say what was simulated).
     drop, duplicate: the probability that a frame is lost on the way (its number and time pass
         without it) or handed over twice, as a busy USB bus does.
+    temporal_alpha: smooth the depth over time as a camera's temporal post-filter does (exponential smoothing
+        with this weight on the new frame; None: off): consecutive frames become correlated.
     light: "day" (room light on the wall), "night" (the projector is the only light), or "auto":
         night if the camera is first configured with the projector on (the paper's night-time
         active runs), day otherwise (its day-time passive runs).
@@ -80,6 +85,7 @@ class FakeCamera(DepthCamera):
         conceal: bool = False,
         drop: float = 0.0,
         duplicate: float = 0.0,
+        temporal_alpha: float | None = None,
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -106,6 +112,8 @@ class FakeCamera(DepthCamera):
         self._fault_rng = np.random.default_rng(seed + 1299709)
         self.drop = drop
         self.duplicate = duplicate
+        self.temporal_alpha = temporal_alpha
+        self._filter: tuple[StopField, np.ndarray] | None = None  # the temporal filter's memory, per stop
         self._render: tuple[StopField, _RenderArrays] | None = None
         self._settings = CameraSettings()
         self._open = False
@@ -147,6 +155,7 @@ class FakeCamera(DepthCamera):
             light=o["light"],
             drop=o["drop"],
             duplicate=o["duplicate"],
+            temporal_alpha=o["temporal_alpha"],
         )
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -169,6 +178,7 @@ class FakeCamera(DepthCamera):
                 "physics": vars(self.physics),
                 "effects": [e.to_dict() for e in self.effects],
                 "light": self.light,
+                "temporal_alpha": self.temporal_alpha,
                 "seed": self.seed,
                 "fps": self.fps,
             },
@@ -273,6 +283,10 @@ class FakeCamera(DepthCamera):
                 depth_from_disparity(d, valid, r.units_per_px, depth)
             else:
                 depth_from_noise(noise, r.sigma_d_px, r.d_true_px, f.valid, r.units_per_px, depth)
+            if self.temporal_alpha is not None:
+                if self._filter is None or self._filter[0] is not f:  # a new stop or new settings: no memory
+                    self._filter = (f, np.zeros(shape, np.float32))
+                temporal_filter(depth, self._filter[1], self.temporal_alpha)
             frame = Frame(
                 depth=depth,
                 frame_number=self._frame_number,

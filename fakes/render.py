@@ -60,3 +60,21 @@ def ir_from_uniform(uniform, light_e, noise_e, dn_per_e, max_dn, out):  # pragma
             e = light_e[r, c] + noise_e[r, c] * (uniform[r, c] - np.float32(0.5)) * root12
             dn = np.rint(e * dn_per_e)
             out[r, c] = 0 if dn < 0 else (max_dn if dn > max_dn else np.uint16(dn))
+
+
+@njit(cache=True, nogil=True)
+def temporal_filter(depth, state, alpha):  # pragma: no cover - compiled
+    """A temporal post-filter, as RealSense's and OAK-D's: out_t = alpha in_t + (1 - alpha) out_{t-1} on pixels valid in
+    this frame and the last (exponential smoothing), in depth units; the filter's memory `state` (float32, 0 = none)
+    is updated and `depth` rewritten in place, rounded. A pixel missing in this frame stays missing and is forgotten."""
+    h, w = depth.shape
+    for r in range(h):
+        for c in range(w):
+            d = depth[r, c]
+            if d == 0:
+                state[r, c] = 0
+                continue
+            s = state[r, c]
+            v = np.float32(d) if s == 0 else np.float32(alpha) * np.float32(d) + np.float32(1 - alpha) * s
+            state[r, c] = v
+            depth[r, c] = np.uint16(np.rint(v))

@@ -303,7 +303,11 @@ class Recording:
             return g[name][()] if name in g else np.full(shape, np.nan)
 
         m3 = opt("m3_m3") if third_moment else np.full(shape, np.nan)
-        stats = PixelStats(count=count, mean_m=g["mean_m"][()], m2_m2=g["m2_m2"][()], m3_m3=m3, m4_m4=opt("m4_m4"))
+        # the lag-1 statistics (frame independence) are absent from older recordings: not checked (None)
+        lag = {k: g[k][()] if k in g else None for k in ("lag1_pairs", "lag1_m2")}
+        repeated = g.attrs.get("frames_repeated")
+        stats = PixelStats(count=count, mean_m=g["mean_m"][()], m2_m2=g["m2_m2"][()], m3_m3=m3, m4_m4=opt("m4_m4"),
+                           **lag, frames_repeated=int(repeated) if repeated is not None else None)
         series = None
         if "frames" in g:
             fr = g["frames"]
@@ -375,10 +379,12 @@ def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
     if shape[0] and shape[1] and st.count.shape != shape:
         raise bad("count", f"has shape {st.count.shape}, but the camera is {shape[1]}x{shape[0]}",
                   "a recording holds one camera resolution; record the stop again into a new file")
-    for name in ("ir_mean", "ambient_ir_mean"):
-        arr = getattr(s, name)
+    for name, arr in (("ir_mean", s.ir_mean), ("ambient_ir_mean", s.ambient_ir_mean), ("lag1_pairs", st.lag1_pairs),
+                      ("lag1_m2", st.lag1_m2)):
         if arr is not None and arr.shape != st.count.shape:
             raise bad(name, f"has shape {arr.shape}, not the stop's {st.count.shape}")
+    if st.lag1_pairs is not None and np.any(st.lag1_pairs >= np.maximum(st.count, 1)):
+        raise bad("lag1_pairs", "has more consecutive pairs than samples at some pixel")
     count = st.count
     if not np.issubdtype(count.dtype, np.number) or not np.all(np.isfinite(count)) or np.any(count < 0) \
             or np.any(count != np.round(count)):

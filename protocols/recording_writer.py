@@ -247,6 +247,10 @@ class RecordingWriter:
         g.create_dataset("m2_m2", data=stats.m2_m2, **comp)
         g.create_dataset("m3_m3", data=stats.m3_m3, **comp)
         g.create_dataset("m4_m4", data=stats.m4_m4, **comp)
+        if stats.lag1_pairs is not None and stats.lag1_m2 is not None:  # frame independence (docs/data-format.md)
+            g.create_dataset("lag1_pairs", data=stats.lag1_pairs, **comp)
+            g.create_dataset("lag1_m2", data=stats.lag1_m2, **comp)
+            g.attrs["frames_repeated"] = int(stats.frames_repeated or 0)
         if ir_mean is not None:
             g.create_dataset("ir_mean", data=ir_mean, **comp)
         if ambient_ir_mean is not None:

@@ -7,6 +7,12 @@ compiled pass per frame (numba; no per-frame temporaries):
 S1 and S2 in int64, so count, mean and the sum of squared deviations are exact; S3 and S4 in
 float64 (exact while the shifted values stay below 2^13 units, otherwise rounded to 1e-16 of
 the sum). Central moments follow from the shifted sums at the end.
+
+Frames are checked for independence in the same pass: over each pixel's consecutive pairs (frame t
+and t-1 both valid), the number of pairs and, in int64 (exact), sum x_t x_{t-1} and sum (x_t + x_{t-1})
+of the shifted samples. With the pixel's mean they give the lag-1 autocovariance sum
+C1 = sum over pairs of (z_t - mean)(z_{t-1} - mean) (the standard estimator's numerator, Box & Jenkins
+r_1 = c_1 / c_0). Whole frames identical to the previous one at every pixel valid in both are counted.
 """
 
 from __future__ import annotations
@@ -23,6 +29,9 @@ class PixelStats:
 
     count: valid samples per pixel; mean_m: their mean range in m; m2_m2, m3_m3, m4_m4: sums
     over samples of (z - mean)^k, in m^k (central sums, not divided by the count).
+    lag1_pairs: consecutive pairs of frames in which the pixel was valid in both; lag1_m2: sum over
+    them of (z_t - mean)(z_{t-1} - mean), in m^2; frames_repeated: frames identical to the previous
+    one at every pixel valid in both. None: not checked (recordings made before rig recorded them).
     """
 
     count: np.ndarray
@@ -30,6 +39,9 @@ class PixelStats:
     m2_m2: np.ndarray
     m3_m3: np.ndarray
     m4_m4: np.ndarray
+    lag1_pairs: np.ndarray | None = None
+    lag1_m2: np.ndarray | None = None
+    frames_repeated: int | None = None
 
     @property
     def variance_m2(self) -> np.ndarray:
@@ -60,6 +72,14 @@ class PixelMomentAccumulator:
         self.s2 = np.zeros(shape, np.int64)
         self.s3 = np.zeros(shape, np.float64)
         self.s4 = np.zeros(shape, np.float64)
+        #: the previous frame's sample (0: none, or not valid); consecutive valid pairs; over them, the exact
+        #: sums of x_t x_{t-1} and of x_t + x_{t-1} (x: the shifted sample)
+        self.prev = np.zeros(shape, np.uint16)
+        self.pairs = np.zeros(shape, np.uint32)
+        self.lag_xy = np.zeros(shape, np.int64)
+        self.lag_x_plus_y = np.zeros(shape, np.int64)
+        #: frames identical to the previous one at every pixel valid in both (at least one such pixel)
+        self.frames_repeated = 0
         #: valid pixels in the last frame folded in
         self.last_valid = 0
 
@@ -74,8 +94,11 @@ class PixelMomentAccumulator:
             raise ValueError(f"frame shape {depth.shape} differs from the stop's {self.shape}")
         if depth.dtype != np.uint16:
             depth = depth.astype(np.uint16)
-        n_valid, inv_sum = _fold(depth, self.shift, self.count, self.s1, self.s2, self.s3, self.s4)
+        n_valid, inv_sum, n_paired, n_changed = _fold(depth, self.shift, self.count, self.s1, self.s2, self.s3, self.s4,
+                                                      self.prev, self.pairs, self.lag_xy, self.lag_x_plus_y)
         self.last_valid = int(n_valid)
+        if n_paired > 0 and n_changed == 0:
+            self.frames_repeated += 1
         if n_valid == 0:
             return float("nan")
         return inv_sum / n_valid / self.depth_scale_m
@@ -83,9 +106,11 @@ class PixelMomentAccumulator:
     def result(self) -> PixelStats:
         """The stop's statistics, in one compiled pass over the pixels (`_central`)."""
         shape = self.shape
-        mean, m2, m3, m4 = (np.empty(shape) for _ in range(4))
+        mean, m2, m3, m4, lag1 = (np.empty(shape) for _ in range(5))
         _central(self.count, self.shift, self.s1, self.s2, self.s3, self.s4, self.depth_scale_m, mean, m2, m3, m4)
-        return PixelStats(count=self.count.copy(), mean_m=mean, m2_m2=m2, m3_m3=m3, m4_m4=m4)
+        _lag1(self.count, self.s1, self.pairs, self.lag_xy, self.lag_x_plus_y, self.depth_scale_m, lag1)
+        return PixelStats(count=self.count.copy(), mean_m=mean, m2_m2=m2, m3_m3=m3, m4_m4=m4,
+                          lag1_pairs=self.pairs.copy(), lag1_m2=lag1, frames_repeated=self.frames_repeated)
 
 
 @njit(cache=True, nogil=True)
@@ -112,17 +137,38 @@ def _central(count, shift, s1, s2, s3, s4, scale, mean, m2, m3, m4):  # pragma: 
 
 
 @njit(cache=True, nogil=True)
-def _fold(depth, shift, count, s1, s2, s3, s4):  # pragma: no cover - compiled
-    """One frame into the shifted power sums S1..S4 of every valid pixel, in one pass.
+def _lag1(count, s1, pairs, lag_xy, lag_x_plus_y, scale, out):  # pragma: no cover - compiled
+    """Per pixel, C1 = sum over pairs of (x_t - a)(x_{t-1} - a) = P - a Q + p a^2 with a = S1 / n, P = sum x_t x_{t-1},
+    Q = sum (x_t + x_{t-1}), p pairs (the shift cancels), in m^2; 0 where there is no pair."""
+    h, w = count.shape
+    for r in range(h):
+        for c in range(w):
+            p = pairs[r, c]
+            if p == 0:
+                out[r, c] = 0.0
+                continue
+            a = np.float64(s1[r, c]) / np.float64(count[r, c])
+            out[r, c] = (np.float64(lag_xy[r, c]) - a * np.float64(lag_x_plus_y[r, c]) + np.float64(p) * a * a) * scale * scale
 
-    Returns (valid pixels, sum over them of 1/z - 1/z_ref in 1/depth-unit). Each sum is updated in
-    frame order exactly as numpy would: S1, S2 in int64 (exact), S3 = x^3, S4 = x^4 in float64."""
+
+@njit(cache=True, nogil=True)
+def _fold(depth, shift, count, s1, s2, s3, s4, prev, pairs, lag_xy, lag_x_plus_y):  # pragma: no cover - compiled
+    """One frame into the shifted power sums S1..S4 of every valid pixel, and into the lag-1 sums of every pixel
+    valid in this frame and the last, in one pass.
+
+    Returns (valid pixels, sum over them of 1/z - 1/z_ref in 1/depth-unit, pixels valid in both frames, those of
+    them whose sample changed). Each sum is updated in frame order exactly as numpy would: S1, S2 and the lag-1
+    sums in int64 (exact), S3 = x^3, S4 = x^4 in float64."""
     n_valid = 0
     inv_sum = 0.0
+    n_paired = 0
+    n_changed = 0
     h, w = depth.shape
     for r in range(h):
         for c in range(w):
             d = depth[r, c]
+            last = prev[r, c]
+            prev[r, c] = d
             if d == 0:
                 continue
             ref = shift[r, c]
@@ -139,9 +185,17 @@ def _fold(depth, shift, count, s1, s2, s3, s4):  # pragma: no cover - compiled
             s3[r, c] += x3
             s4[r, c] += x3 * xf
             n_valid += 1
+            if last != 0:  # a consecutive pair (the shift was set by the earlier sample)
+                y = np.int64(last) - np.int64(ref)
+                pairs[r, c] += 1
+                lag_xy[r, c] += x * y
+                lag_x_plus_y[r, c] += x + y
+                n_paired += 1
+                if last != d:
+                    n_changed += 1
             # 1/z - 1/z_ref = -(z - z_ref) / (z z_ref), in depth units
             inv_sum -= xf / (np.float64(d) * np.float64(ref))
-    return n_valid, inv_sum
+    return n_valid, inv_sum, n_paired, n_changed
 
 
 class MeanImageAccumulator:

@@ -16,6 +16,9 @@ family of statistics the model predicts, each bin against its own sampling error
   frame mean by stop (time): the variance over frames of the frame's mean of 1/z
       predicted: sum(var / Z^4) / n_valid^2 from independent pixels, plus any common wander the
       model has (drift); z = ln(measured / predicted) / sqrt(2 / (frames - 1))
+  lag-1 correlation by stop: the frames' pooled lag-1 correlation (rig.models.independence)
+      predicted: 0 for independent noise, plus a slow common wander's share of the variance (drift);
+      z = (measured - predicted) / se; absent for recordings that do not record it (not checked)
 
 Each family is within noise when sum z^2 is consistent with chi^2 on as many degrees of freedom
 as it has bins (p >= ALPHA / number of families: the family-wise false alarm rate is ALPHA).
@@ -31,6 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..models import ModelData
+from ..models.independence import rho_and_se
 from ..models.result import chi2_sf
 from .bins import BinComparison
 
@@ -145,6 +149,30 @@ def frame_mean_check(d: ModelData, stops: StopSums) -> Check | None:
     meas_a, pred_a = np.array(meas), np.array(predicted)
     z = np.log(meas_a / pred_a) / np.sqrt(2.0 / np.array(dof))
     return Check("frame-mean variance", "time", labels, np.array(center), meas_a, pred_a, np.array(se), z)
+
+
+def lag1_check(d: ModelData, stops: StopSums) -> Check | None:
+    """Each stop's pooled lag-1 correlation of the frames against the model's: every model's noise is drawn afresh
+    each frame (0); a wander common to the stop's pixels (drift), slow against the frame interval, adds its share of
+    the variance, sum (n - 1) var_common / sum (n - 1) var, about. None when the recording does not record it."""
+    t = d.stops
+    if t is None or t.lag1_num is None or not np.isfinite(t.lag1_num).any():
+        return None
+    labels, center, meas, predicted, se = [], [], [], [], []
+    for s in sorted(stops.rows):
+        rho, err = rho_and_se(t.lag1_num[s], t.lag1_den[s], t.lag1_pairs[s])
+        row = stops.rows[s]
+        if not np.isfinite(rho) or not row[9] > 0:
+            continue
+        labels.append(_stop_label(d, s))
+        center.append(float(row[5] / row[0]))
+        meas.append(rho)
+        predicted.append(float(row[8] / row[9]))
+        se.append(err)
+    if not labels:
+        return None
+    m, p, e = np.array(meas), np.array(predicted), np.array(se)
+    return Check("lag-1 correlation", "stop", labels, np.array(center), m, p, e, (m - p) / e)
 
 
 def _stop_label(d: ModelData, s: int) -> str:

@@ -18,7 +18,7 @@ from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
 from .bins import RADIUS_EDGES, BinComparison, BinSums, add_families, bin_columns, range_labels
-from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, sigma_check
+from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 
 #: image tiles for the position family (columns, rows)
 POSITION_TILES = (8, 6)
@@ -152,8 +152,10 @@ class StopSums:
         for m in slices if slices is not None else [c.stop == s for s in np.unique(c.stop)]:
             s = c.stop[m][0]
             f = c.fill[m]
+            w = np.maximum(c.n[m] - 1, 0)  # the pixel's consecutive pairs, about (lag-1 correlation: rig.models.independence)
             row = np.array([np.size(f), f.sum(), (f * (1 - f) / frames[m]).sum(), frames[m].sum(), fill_p[m].sum(),
-                            c.z_m[m].sum(), independent[m].sum(), common[m].sum()])
+                            c.z_m[m].sum(), independent[m].sum(), common[m].sum(), (w * common[m] * z4[m]).sum(),
+                            (w * np.broadcast_to(pred.var_m2, c.z_m.shape)[m]).sum()])
             key = int(s)
             self.rows[key] = self.rows[key] + row if key in self.rows else row
 
@@ -183,9 +185,9 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
     if kurt is not None:
         checks.append(kurt)
     checks.append(fill_check(d, stops))
-    frame_mean = frame_mean_check(d, stops)
-    if frame_mean is not None:
-        checks.append(frame_mean)
+    for extra in (frame_mean_check(d, stops), lag1_check(d, stops)):
+        if extra is not None:
+            checks.append(extra)
     return Residuals(done["range"], done["radius"], by_position, done.get("brightness"), done.get("incidence"),
                      Consistency(checks), done.get("range_radius"))
 

@@ -102,7 +102,8 @@ def _shapes_for(check: Check | None, head: Headline) -> tuple[str, list[str]]:
 
         ranked = sorted(SIGMA_SHAPES, key=lambda cov: -excess(cov))[:SHAPES_TRIED]
         return (check.name if check is not None else "sigma by range and radius"), [s for s in SIGMA_SHAPES if s in ranked]
-    return check.name, [FAMILY_SHAPE[check.quantity]]
+    # no shape makes frames independent (lag-1 correlation): nothing to try for that family
+    return check.name, [FAMILY_SHAPE[check.quantity]] if check.quantity in FAMILY_SHAPE else []
 
 
 def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: ProgressCounter | None = None,

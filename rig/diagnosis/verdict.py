@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors
+from ..models.independence import Independence, independence
 from ..models.progress import ProgressCounter, ProgressFn
 from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
 from .residuals import Residuals, residuals
@@ -114,9 +115,20 @@ class Diagnosis:
     def final_headline(self) -> Headline:
         return self.unexplained.final_headline if self.unexplained is not None else self.catalogue_headline
 
+    @property
+    def independence(self) -> Independence:
+        """Whether the recording's frames are independent samples (`rig.models.independence`)."""
+        return independence(self.data.stops)
+
     # -- words ------------------------------------------------------------------------------
     def summary(self) -> str:
-        """A few plain sentences: what is missing, or that nothing is, and what remains."""
+        """A few plain sentences: what is missing, or that nothing is, and what remains; first, when the frames are
+        not independent, that (no model assumes otherwise, so nothing else is trustworthy)."""
+        ind = self.independence
+        first = ind.sentence() + " " if ind.correlated else ""
+        return first + self._summary()
+
+    def _summary(self) -> str:
         m = self.model_fit.model.name
         shape = _shape_sentence(self.model_headline)
         if len(self.steps) == 1:

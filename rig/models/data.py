@@ -28,7 +28,7 @@ import numpy as np
 from protocols.recording import CameraCalibration
 
 from .covariates import StopSource, covariate_rows
-from .loading import BRIGHTNESS_WINDOW_PX, read_rows
+from .loading import BRIGHTNESS_WINDOW_PX, LAG1_FACTS, read_rows
 from .rounding import grid_offset
 from .shape_statistics import ShapeStatistics
 #: range windows of the kurtosis term and of the diagnosis (m)
@@ -47,7 +47,9 @@ class StopTable:
     1/z - 1/z_first over valid pixels, (1/m)^2 (NaN if not recorded): independent pixel noise
     makes it mean(var / Z^4) / n_valid, a common wander (drift) or noise shared by neighbouring
     pixels makes it larger; n_valid: valid pixels in a frame, on average; time_s: the stop's
-    middle, s after the first stop began (NaN if the camera gave no timestamps).
+    middle, s after the first stop began (NaN if the camera gave no timestamps). lag1_num, lag1_den,
+    lag1_pairs, frames_repeated, kept, constant: frame independence (`rig.models.independence`; NaN where
+    the stop does not record it, None for data built by hand).
     """
 
     label: tuple[str, ...]
@@ -55,6 +57,12 @@ class StopTable:
     series_var_inv2: np.ndarray
     n_valid: np.ndarray
     time_s: np.ndarray
+    lag1_num: np.ndarray | None = None
+    lag1_den: np.ndarray | None = None
+    lag1_pairs: np.ndarray | None = None
+    frames_repeated: np.ndarray | None = None
+    kept: np.ndarray | None = None
+    constant: np.ndarray | None = None
 
 
 #: covariates computed from the stop sources when first used (or given, for data built by hand)
@@ -301,7 +309,7 @@ def load_samples(recording: Any, *, min_count: int = 2, positive_variance: bool 
     f = r.facts
     t0 = np.nanmin(f["time_s"]) if np.isfinite(f["time_s"]).any() else 0.0
     stops = StopTable(tuple(f["label"]), np.array(f["frames"]), np.array(f["series_var_inv2"]), np.array(f["n_valid"]),
-                      np.array(f["time_s"]) - t0)
+                      np.array(f["time_s"]) - t0, **{k: np.array(f[k], float) for k in LAG1_FACTS})
     cal = recording.calibration
     return ModelData(**r.arrays, fb_px_m=cal.fx * cal.baseline_m, depth_unit_m=cal.depth_scale_m, stops=stops,
                      sources=r.sources, calibration=cal, n_dropped_zero=r.dropped_zero)

@@ -10,13 +10,18 @@ images and no second copy of the rows are held while the next stop is read.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
 from protocols.recording import Recording, StopData
 
 from .covariates import StopSource
+from .independence import independence, pooled_lag1
 
+#: per-stop facts of frame independence (rig.models.independence): the pooled lag-1 sums, frames repeating their
+#: predecessor, pixels kept (two samples or more) and those of them that never changed; NaN: not recorded
+LAG1_FACTS = ("lag1_num", "lag1_den", "lag1_pairs", "frames_repeated", "kept", "constant")
 #: the matching window over which brightness is averaged (px)
 BRIGHTNESS_WINDOW_PX = 7
 
@@ -40,13 +45,14 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
     labels = recording.stop_labels()
     rows = _Rows(len(labels) * cal.width * cal.height)
     sources: list[StopSource] = []
-    facts: dict[str, list] = {"label": [], "frames": [], "series_var_inv2": [], "n_valid": [], "time_s": []}
+    facts: dict[str, list] = {k: [] for k in ("label", "frames", "series_var_inv2", "n_valid", "time_s", *LAG1_FACTS)}
     dropped_zero = 0
     for i, label in enumerate(labels):
         stop = recording.stop(label, third_moment=False)
         s = stop.stats
         with np.errstate(invalid="ignore"):
             keep = (s.count >= max(2, min_count)) & np.isfinite(s.mean_m) & (s.mean_m > 0)
+        _add_lag1_facts(facts, s, keep)
         if positive_variance:
             zero = keep & ~(s.m2_m2 > 0)
             dropped_zero += int(zero.sum())
@@ -59,6 +65,9 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
     if not np.any(rows.m2[: rows.size] > 0):
         raise ValueError(f"{recording.path}: every pixel's samples are identical (zero variance), so there is no noise to "
                          "fit; the frames are copies of one image: record or import frames captured one after another")
+    problem = independence(SimpleNamespace(**facts)).identical_problem()
+    if problem:
+        raise ValueError(f"{recording.path}: {problem}")
     return RecordingRows(rows.arrays(), sources, facts, dropped_zero)
 
 
@@ -116,3 +125,13 @@ def _add_stop_facts(table: dict[str, list], stop: StopData) -> None:
     table["n_valid"].append(float(np.mean(frac)) * size if len(frac) and np.isfinite(frac).all() else np.nan)
     ts = series.timestamp_ms if series is not None else np.array([])
     table["time_s"].append(float(np.mean(ts)) / 1000.0 if len(ts) and np.isfinite(ts).all() else np.nan)
+
+
+def _add_lag1_facts(table: dict[str, list], s, keep: np.ndarray) -> None:
+    num, den, pairs = pooled_lag1(s)
+    table["lag1_num"].append(num)
+    table["lag1_den"].append(den)
+    table["lag1_pairs"].append(pairs)
+    table["frames_repeated"].append(float(s.frames_repeated) if s.frames_repeated is not None else np.nan)
+    table["kept"].append(float(keep.sum()))
+    table["constant"].append(float((keep & ~(s.m2_m2 > 0)).sum()))

@@ -15,6 +15,7 @@ from scipy.optimize import minimize
 from .closed_form import power_law_mle
 from .data import ModelData
 from .error_notes import error_notes
+from .independence import error_inflation
 from .parameters import Param
 from .result import ModelFit
 
@@ -243,6 +244,10 @@ def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelDat
             if not (np.all(np.isfinite(s)) and np.all(np.isfinite(held))):
                 break
             steps = np.minimum(0.2 * held, np.where(room > 0, 0.5 * room, steps))
+    # frames measured not independent hold fewer independent samples: widen by sqrt(n / n_eff) (rig.models.independence)
+    grow = error_inflation(d)
+    if grow != 1.0:
+        se, cov = se * grow, (cov * grow**2 if cov is not None else None)
     return dict(zip(names, map(float, se))), cov, error_notes(names, values, params, h, se)
 
 

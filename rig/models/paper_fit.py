@@ -13,6 +13,7 @@ from .bases import fixed_lambda, power_law
 from .closed_form import power_law_mle
 from .composition import Model
 from .data import ModelData
+from .independence import error_inflation
 from .result import ModelFit
 
 
@@ -20,9 +21,11 @@ def fit_power_law(samples: ModelData, *, lam: float | None = None) -> ModelFit:
     """Maximum-likelihood k and lambda (or k alone, with lambda fixed at `lam`) from pixel samples."""
     e = power_law_mle(samples.z_m, samples.m2_m2, samples.n, lam=lam)
     model = Model(fixed_lambda(e.lam)) if e.lam_fixed else Model(power_law)
-    se_k = math.sqrt(e.covariance[0, 0])
-    errors = {"k": se_k} if e.lam_fixed else {"k": se_k, "lambda": math.sqrt(e.covariance[1, 1])}
-    covariance = e.covariance[:1, :1] if e.lam_fixed else e.covariance
+    grow = error_inflation(samples)  # sqrt(n / n_eff) when the frames are not independent, else 1
+    cov = e.covariance * grow**2
+    se_k = math.sqrt(cov[0, 0])
+    errors = {"k": se_k} if e.lam_fixed else {"k": se_k, "lambda": math.sqrt(cov[1, 1])}
+    covariance = cov[:1, :1] if e.lam_fixed else cov
     return ModelFit(model, {"k": e.k, "lambda": e.lam}, errors, e.loglik, n_obs=e.n_pixels, n_samples=e.n_samples,
                     dof=e.dof, z_range_m=e.z_range_m, covariance=covariance,
                     likelihood="Gaussian, of the samples, as in the paper")

@@ -78,8 +78,13 @@ NOT_IN_CATALOGUE: dict[str, tuple[Callable[[np.random.Generator], dict[str, floa
     "correlated_noise": (lambda r: {"sigma_px": r.uniform(0.03, 0.06), "length_px": r.uniform(16.0, 32.0)}, ("time",)),
     "scale_mixture": (lambda r: {"fraction": r.uniform(0.05, 0.1), "factor": r.uniform(3.0, 4.0)}, ("tails",)),
 }
+#: frames that are not independent: a camera's temporal post-filter (the fake camera's temporal_alpha, exponential
+#: smoothing with weight alpha on the new frame); the diagnosis must say "frames not independent", never "within noise"
+NOT_INDEPENDENT: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
+    "temporal_filter": lambda r: {"alpha": r.uniform(0.3, 0.6)},
+}
 #: every scenario the blind test runs
-ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE]
+ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT]
 
 
 @dataclass(frozen=True)
@@ -89,13 +94,18 @@ class Expected:
 
     named: tuple[str, ...] = ()
     covariates: tuple[str, ...] = ()
+    not_independent: bool = False  # frames correlated: "frames not independent", never "within noise"
 
     @property
     def kind(self) -> str:
+        if self.not_independent:
+            return "independence"
         return "open" if self.covariates else ("pair" if len(self.named) > 1 else "catalogue")
 
 
 def expected(effect: str) -> Expected:
+    if effect in NOT_INDEPENDENT:
+        return Expected(not_independent=True)
     if effect in NOT_IN_CATALOGUE:
         return Expected((), NOT_IN_CATALOGUE[effect][1])
     if effect == COARSE_DEPTH_UNIT:
@@ -123,7 +133,7 @@ class Scenario:
 
     def simulated(self) -> list[tuple[str, dict[str, float]]]:
         """(fake effect, parameters) for each hidden simulator effect."""
-        if self.effect in ("none", "quantization", COARSE_DEPTH_UNIT):
+        if self.effect in ("none", "quantization", COARSE_DEPTH_UNIT, *NOT_INDEPENDENT):
             return []
         if "+" in self.effect:
             return [(name, dict(self.params.get(name, {}))) for name in self.effect.split("+")]
@@ -136,7 +146,7 @@ class Scenario:
 
 
 def _draw(name: str, rng: np.random.Generator) -> dict[str, float]:
-    draw = HIDDEN[name] if name in HIDDEN else NOT_IN_CATALOGUE[name][0]
+    draw = HIDDEN[name] if name in HIDDEN else NOT_INDEPENDENT[name] if name in NOT_INDEPENDENT else NOT_IN_CATALOGUE[name][0]
     return {k: round(float(v), 4) for k, v in draw(rng).items()}
 
 
@@ -175,7 +185,8 @@ def record_scenario(sc: Scenario, out: str | Path, *, progress=None) -> Path:
     world = FakeWorld(Wall(distance_m=1.0))
     height = round(sc.width * 480 / 848)
     cam = FakeCamera(world, width=sc.width, height=height, depth_scale_m=sc.depth_unit_mm / 1000, effects=effects,
-                     seed=sc.seed, conceal=True, serial=f"SIM-{sc.seed:04d}", light="night")
+                     seed=sc.seed, conceal=True, serial=f"SIM-{sc.seed:04d}", light="night",
+                     temporal_alpha=sc.params.get("alpha") if sc.effect in NOT_INDEPENDENT else None)
     stage = FakeStage(world, seed=sc.seed)
     plan = perpendicular(frames_per_stop=sc.frames, projector_on=True, ambient_frames=sc.ambient_frames)
     Runner(cam, stage, progress=progress, sleep=lambda s: setattr(world, "time_s", world.time_s + s)).run(plan, out)

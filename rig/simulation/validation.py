@@ -10,6 +10,8 @@ recording blind, and judge it by what the scenario expects (`scenarios.EXPECTED`
       within noise: every statistic within noise once the path's effects are in
   pair
       found: both effects on the path, in either order; within noise after them
+  frames not independent (a temporal post-filter)
+      named: the diagnosis says "frames not independent"; and it never ends within noise
   an effect the catalogue lacks
       no false claim: the catalogue's effects alone do not bring every statistic within noise;
       covariate right: what remains follows a covariate the effect can explain;
@@ -59,6 +61,8 @@ class Trial:
 
     @property
     def passed(self) -> bool:
+        if self.kind == "independence":  # named "frames not independent", and never "within noise"
+            return self.correct and not self.within_noise
         if self.kind == "open":
             return self.correct and self.covariate_right and self.within_noise
         return self.correct and self.halved and self.within_noise
@@ -79,11 +83,13 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
         correct = set(want.named) <= set(added)
     elif want.kind == "open":
         correct = not catalogue.within_noise
+    elif want.kind == "independence":
+        correct = dg.independence.correlated and "Frames not independent" in dg.summary()
     else:
         correct = named == (want.named[0] if want.named else "none")
     u = dg.unexplained
     covariate = u.covariate if u is not None else ""
-    after = final if want.kind == "open" else catalogue
+    after = final if want.kind in ("open", "independence") else catalogue
     worst = after.consistency.worst(extra=1) if after.consistency is not None and not after.within_noise else None
     return Trial(
         effect, seed, want.kind, named, added, correct, covariate,
@@ -149,7 +155,7 @@ def summary(trials: list[Trial]) -> str:
 
         want = expected(effect).covariates
         on_path = f"{sum(any(c in want for c in t.empirical) for t in ts)}/{n}" if kind == "open" else "-"
-        halved = count("halved") if kind != "open" else "-"
+        halved = count("halved") if kind not in ("open", "independence") else "-"
         cov = count("covariate_right") if kind == "open" else "-"
         before = statistics.median(t.error_before_pct for t in ts)
         after = statistics.median((t.error_after_pct if kind == "open" else t.error_catalogue_pct) for t in ts)
