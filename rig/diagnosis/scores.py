@@ -90,7 +90,7 @@ class Headline:
             return "every statistic within noise" if self.consistency is not None else "within noise"
         worst = self.consistency.worst(extra=1) if self.consistency is not None else None
         if worst is None or (not self.sigma_within_noise and self.chi2 / self.dof > worst.chi2 / worst.dof):
-            return f"beyond noise; worst: sigma by range and radius, chi2 {self.chi2:.0f}/{self.dof}"
+            return f"beyond noise; worst: sigma by range and radius, chi2 {self.chi2:.4g}/{self.dof}"
         return f"beyond noise; worst: {worst.describe_worst()}"
 
     @property
