@@ -29,6 +29,7 @@ from drivers.folder.manifest import FLAGS, MANIFEST_NAME, OPTIONAL_KEYS, REQUIRE
 from drivers.folder.stops import MAX_RANGE_MISMATCH, center_counts, distance_from_match, natural_key, suggest_depth_unit
 from drivers.stage import NoStage
 
+from .bag_spans import parse_distances, parse_time_spans, stops_at_gaps, stops_in_time
 from .folder_import import PROTOCOL, _check_paths_out
 from .plan import Capture, Configure, Move, Plan
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
@@ -52,11 +53,13 @@ def find_bags(src: Path) -> list[Path]:
 
 def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | None = None,
                 progress: ProgressCallback | None = None, *, topic: str | None = None,
-                distance_m: float | None = None) -> Path:
+                distance_m: float | None = None, stops_in_time: str | None = None,
+                stops_at_gaps: str | None = None) -> Path:
     """Import a bag, or a folder of bags (one stop each), into the recording `out`; return its path.
 
     overrides: import keys (the manifest's names: fx, ..., projector_on, stop_distance_from_name) that replace
     what the bags say; None values are ignored. distance_m: the distance of a single bag's stop, in m.
+    stops_in_time ('Z@T0-T1,...') or stops_at_gaps ('Z1,Z2,...'): one bag holding several stops (protocols.bag_spans).
     Raises FolderImportError with a one-line message; on any failure no output file is left.
     """
     src, out = Path(src), Path(out)
@@ -72,7 +75,10 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
     missing = [k for k in REQUIRED_KEYS if k not in values]
     if missing:
         raise FolderImportError(f"{src}: the bag does not say {', '.join(missing)}; pass {', '.join(FLAGS[k] for k in missing)}")
-    stops = _stops(facts, values, distance_m, src)
+    if stops_in_time is not None or stops_at_gaps is not None:
+        stops = _spans(facts, src, distance_m, stops_in_time, stops_at_gaps)
+    else:
+        stops = _stops(facts, values, distance_m, src)
     for s in stops:
         _check_depth_unit(s, float(values["depth_unit_m"]))
     report = progress or (lambda e: None)
@@ -140,9 +146,24 @@ def _stops(facts: list[BagFacts], values: dict[str, Any], distance_m: float | No
     return sorted(stops, key=lambda s: (s.distance_m, natural_key(s.label)))
 
 
+def _spans(facts: list[BagFacts], src: Path, distance_m: float | None, in_time: str | None,
+           at_gaps: str | None) -> list[BagStop]:
+    """The stops of one bag told apart by time spans or pauses."""
+    if len(facts) != 1 or distance_m is not None or (in_time is not None and at_gaps is not None):
+        raise FolderImportError(f"{src}: --stops-in-time and --stops-at-gaps split one bag into stops; give one of them, "
+                                "for one bag, without --distance-m")
+    if in_time is not None:
+        stops = stops_in_time(facts[0], parse_time_spans(in_time))
+    else:
+        stops = stops_at_gaps(facts[0], parse_distances(at_gaps or ""))
+    if len({s.label for s in stops}) != len(stops):
+        raise FolderImportError(f"{src}: two stops at the same distance; give each stop its own distance")
+    return sorted(stops, key=lambda s: s.distance_m)
+
+
 def _check_depth_unit(stop: BagStop, depth_unit_m: float) -> None:
     """Refuse a depth unit (or distance) that puts the stop's first valid frame more than 20 % from its distance."""
-    for frame in bag_frames(stop.facts):
+    for frame in bag_frames(stop.facts, stop.window_ms):
         counts = center_counts(frame.depth)
         if counts is not None:
             break
@@ -196,3 +217,5 @@ def _provenance(path: Path, src: Path, facts: list[BagFacts], manifest: dict[str
             g.attrs["source_topic"] = s.facts.topic
             g.attrs["source_format"] = str(s.facts.extra.get("bag_format", ""))
             g.attrs["source_n_frames"] = s.n_frames
+            if s.window_ms is not None:  # one bag, several stops: the stop's frames, by header stamp
+                g.attrs["source_window_s"] = [(t - s.facts.stamps_ms[0]) / 1e3 for t in s.window_ms]

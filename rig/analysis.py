@@ -19,6 +19,7 @@ from protocols.recording import Recording
 
 from .diagnosis.bins import BinnedSigma, pooled_sigma, sigma_by_range
 from .models import ModelData, ModelFit, fit_power_law, load_samples
+from .models.independence import independence
 from .models.progress import ProgressCounter
 
 #: the note a recording gives when planned stops are missing (protocols.recording.Recording.notes)
@@ -57,6 +58,9 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
         labels = rec.stop_labels()
         protocol = rec.protocol
         notes = recording_notes(rec)
+    frames = independence(samples.stops)
+    if frames.correlated:  # the fit's errors are widened for it (rig.models.independence); say why, and the fix
+        notes = [*notes, frames.sentence()]
     projector = samples.sources[0].projector_on if samples.sources else True
     samples = in_window(samples, z_min_m, z_max_m)
     counter.step("fitting k and lambda")

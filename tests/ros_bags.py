@@ -19,9 +19,11 @@ PERIOD_NS = 33_333_333  # 30 fps
 
 def write_bag(path: Path, frames: np.ndarray, *, fx: float, fy: float, cx: float, cy: float, baseline_m: float,
               fmt: str = "db3", encoding: str = "16UC1", extra_depth_topic: str | None = None,
-              start_ns: int = 1_700_000_000 * 10**9, skip: frozenset[int] = frozenset()) -> Path:
+              start_ns: int = 1_700_000_000 * 10**9, skip: frozenset[int] = frozenset(),
+              times_ns: list[int] | None = None) -> Path:
     """Write `frames` (N, H, W) as a bag: fmt 'db3' or 'mcap' (a ROS 2 bag folder at `path`) or 'ros1' (`path`.bag).
-    Frames whose index is in `skip` are left out (a recorder that lost them): their time stays a gap."""
+    Frames whose index is in `skip` are left out (a recorder that lost them): their time stays a gap. times_ns:
+    each frame's stamp after start_ns (default: 30 fps)."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = fmt == "ros1"
@@ -71,7 +73,7 @@ def write_bag(path: Path, frames: np.ndarray, *, fx: float, fy: float, cx: float
         for i, frame in enumerate(frames):
             if i in skip:
                 continue
-            ns = start_ns + (i + 1) * PERIOD_NS
+            ns = start_ns + (times_ns[i] if times_ns is not None else (i + 1) * PERIOD_NS)
             data = frame.astype("<u2").view(np.uint8).ravel() if encoding != "32FC1" else \
                 (frame.astype("<f4") * 1e-3).view(np.uint8).ravel()
             step = w * (2 if encoding != "32FC1" else 4)

@@ -169,6 +169,43 @@ def test_the_raw_depth_topic_is_chosen_over_aligned_depth(live, tmp_path):
         assert next(rec.stops()).attrs["source_topic"] == DEPTH
 
 
+def _one_bag_sweep(live: Path, tmp_path: Path, moving: int = 0) -> Path:
+    """The live run's stops in one bag, 5 s apart, 30 fps within a stop; `moving` frames of a camera on the move
+    (a ramp of depth) in each pause."""
+    with Recording(live) as rec:
+        c = rec.calibration
+    frames, times = [], []
+    with h5py.File(live, "r") as f:
+        for i, label in enumerate(sorted(f["stops"], key=lambda k: f["stops"][k].attrs["index"])):
+            raw = f["stops"][label]["raw_depth"][()]
+            frames += list(raw)
+            times += [i * 5 * 10**9 + j * 33_333_333 for j in range(len(raw))]
+            for j in range(moving if i < len(STOPS_M) - 1 else 0):
+                frames.append(np.full_like(raw[0], 20000 + 3000 * j))
+                times.append(i * 5 * 10**9 + 2 * 10**9 + j * 33_333_333)
+    return write_bag(tmp_path / "sweep", np.stack(frames), fx=c.fx, fy=c.fy, cx=c.cx, cy=c.cy, baseline_m=c.baseline_m,
+                     fmt="mcap", times_ns=times)
+
+
+@pytest.mark.parametrize("how", ["gaps", "time"])
+def test_one_bag_holding_the_sweep_is_split_into_its_stops(live, tmp_path, how):
+    bag = _one_bag_sweep(live, tmp_path, moving=3 if how == "time" else 0)
+    args = [str(bag), "-o", str(tmp_path / "sweep.h5"), "--projector", "on", "--depth-unit-m", "5e-5"]
+    if how == "gaps":
+        with pytest.raises(FolderImportError, match=r"3 run\(s\) of frames between pauses of 1 s or more "
+                                                    r"\(0.0-0.2 s, 5.0-5.2 s, 10.0-10.2 s\), but 2 distances"):
+            import_main([*args, "--stops-at-gaps", "0.75,1.5"])
+        assert import_main([*args, "--stops-at-gaps", ",".join(map(str, STOPS_M))]) == 0
+    else:  # the moving frames (at 2 s and 7 s) lie outside every span
+        assert import_main([*args, "--stops-in-time", "0.75@0-1,1.5@5-6,2.25@10-11"]) == 0
+    with Recording(live) as a, Recording(tmp_path / "sweep.h5") as b:
+        assert [s.label for s in b.stops()] == ["0.750m", "1.500m", "2.250m"]
+        for sa, sb in zip(a.stops(), b.stops(), strict=True):
+            assert sb.n_frames == FRAMES and np.array_equal(sa.stats.count, sb.stats.count)
+            for name in ("mean_m", "m2_m2", "m3_m3", "m4_m4"):
+                assert np.array_equal(getattr(sa.stats, name), getattr(sb.stats, name), equal_nan=True), name
+
+
 def _ros2_bag(live: Path, tmp_path: Path, **kw) -> Path:
     with Recording(live) as rec:
         c = rec.calibration
@@ -195,7 +232,7 @@ def test_a_bag_rig_cannot_use_is_one_line_and_no_file(live, tmp_path, case):
     else:
         src = tmp_path / "frames"
         (src / "1.0m").mkdir(parents=True)
-        want = "--distance-m and --topic are for bags"
+        want = "--distance-m, --topic and --stops-* are for bags"
     out = tmp_path / "out.h5"
     with pytest.raises(FolderImportError) as e:
         import_main([str(src), "-o", str(out), *args])

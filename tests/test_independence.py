@@ -96,7 +96,8 @@ def test_a_temporal_filter_is_named_frames_not_independent_and_never_within_nois
 
     sc = hidden_scenario(1000, "temporal_filter", width=27, frames=40)
     alpha = sc.params["alpha"]
-    dg = diagnose(ModelData.from_recording(record_scenario(sc, tmp_path / "tf.h5")), max_steps=0, explain=False)
+    path = record_scenario(sc, tmp_path / "tf.h5")
+    dg = diagnose(ModelData.from_recording(path), max_steps=0, explain=False)
     ind = dg.independence
     assert ind.correlated and abs(ind.rho - (1 - alpha)) < 0.1, (ind, alpha)  # smoothing: rho_1 = 1 - alpha
     assert ind.error_inflation > 1.2
@@ -106,3 +107,7 @@ def test_a_temporal_filter_is_named_frames_not_independent_and_never_within_nois
     assert text.startswith("Frames not independent: lag-1 correlation") and "temporal filter" in text, text
     assert "Fix: record without" in text and not dg.final_headline.within_noise
     assert "within noise (headline" not in text
+    from rig.analysis import fit_recording
+
+    fit = fit_recording(path)  # rig fit says it too, with the widened errors
+    assert any(n.startswith("Frames not independent: lag-1 correlation") for n in fit.notes), fit.notes

@@ -18,10 +18,15 @@ class BagStop:
     label: str
     facts: BagFacts
     distance_m: float
+    #: the stop's frames when a bag holds several stops: header stamps from start to end, ms (None: the whole bag)
+    window_ms: tuple[float, float] | None = None
 
     @property
     def n_frames(self) -> int:
-        return self.facts.n_frames
+        if self.window_ms is None:
+            return self.facts.n_frames
+        lo, hi = self.window_ms
+        return sum(lo <= t <= hi for t in self.facts.stamps_ms)
 
 
 def frame_metadata(meta: dict[str, str], recorded: CameraSettings) -> FrameMetadata:
@@ -82,7 +87,7 @@ class BagCamera(DepthCamera):
     def frames(self, n: int, *, ir: bool = False) -> Iterator[Frame]:
         stop = next(self._pending)
         served = 0
-        for f in frames(stop.facts):
+        for f in frames(stop.facts, stop.window_ms):
             yield Frame(depth=f.depth, frame_number=f.frame_number,
                         timestamp_ms=f.timestamp_ms if math.isfinite(f.timestamp_ms) else math.nan,
                         metadata=frame_metadata(f.metadata, self.recorded))

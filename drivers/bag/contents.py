@@ -61,6 +61,8 @@ class BagFacts:
     camera_serial: str = ""
     camera_firmware: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    #: each depth frame's header stamp, in ms, in bag order
+    stamps_ms: list[float] = field(default_factory=list)
 
     def known(self) -> dict[str, Any]:
         """The import keys this bag gives (the manifest's names: fx, ..., projector_on, exposure_us, gain)."""
@@ -132,17 +134,20 @@ def _facts(r: Any, path: Path, topic: str | None) -> BagFacts:
     realsense = depth.topic.startswith("/device_") and depth.topic.endswith("/image/data")
     first = None
     n = 0
+    stamps = []
     for c, _t, raw in _messages(r, [depth]):
         n += 1
+        msg = r.deserialize(raw, c.msgtype)
+        stamps.append(_stamp_ms(msg))
         if first is None:
-            first = r.deserialize(raw, c.msgtype)
+            first = msg
     if first is None:
         raise FolderImportError(f"{path}: the topic {depth.topic} holds no frame")
     if first.encoding not in DEPTH_ENCODINGS or first.is_bigendian:
         raise FolderImportError(f"{path}: {depth.topic} is {first.encoding}{' big-endian' if first.is_bigendian else ''}; "
                                 f"rig reads integer depth ({' or '.join(DEPTH_ENCODINGS)}, little-endian): record the raw depth topic")
     facts = BagFacts(path, depth.topic, "realsense" if realsense else "ros", n, int(first.width), int(first.height),
-                     first.encoding)
+                     first.encoding, stamps_ms=stamps)
     stream = depth.topic[: -len("/image/data")] if realsense else depth.topic.rsplit("/", 1)[0]
     info_topic = f"{stream}/info/camera_info" if realsense else f"{stream}/camera_info"
     infos = {c.topic: c for c in r.connections if c.msgtype == CAMERA_INFO}
@@ -235,8 +240,9 @@ class BagFrame:
     metadata: dict[str, str]  # the frame's own metadata (RealSense bags), else {}
 
 
-def frames(facts: BagFacts) -> Iterator[BagFrame]:
-    """The depth frames in recording order, one at a time, with their number, time and metadata."""
+def frames(facts: BagFacts, window_ms: tuple[float, float] | None = None) -> Iterator[BagFrame]:
+    """The depth frames in recording order, one at a time, with their number, time and metadata; with `window_ms`,
+    only those whose stamp lies in [start, end] ms."""
     with _reader(facts.path) as r:
         depth = [c for c in r.connections if c.topic == facts.topic and c.msgtype == IMAGE]
         meta_topic = facts.topic[: -len("/data")] + "/metadata" if facts.kind == "realsense" else None
@@ -247,6 +253,9 @@ def frames(facts: BagFacts) -> Iterator[BagFrame]:
             by_time.setdefault(t, {})[str(kv.key)] = str(kv.value)
         for index, (c, t, raw) in enumerate(_messages(r, depth)):
             msg = r.deserialize(raw, c.msgtype)
+            stamp_ms = _stamp_ms(msg)
+            if window_ms is not None and not window_ms[0] <= stamp_ms <= window_ms[1]:
+                continue
             if (msg.width, msg.height, msg.encoding) != (facts.width, facts.height, facts.encoding):
                 raise FolderImportError(f"{facts.path}: frame {index + 1} is {msg.width}x{msg.height} {msg.encoding}, the first "
                                         f"{facts.width}x{facts.height} {facts.encoding}; one stream per import")
@@ -255,4 +264,4 @@ def frames(facts: BagFacts) -> Iterator[BagFrame]:
             meta = by_time.get(t, {})
             seq = getattr(msg.header, "seq", 0)
             number = int(float(meta["Frame Counter"])) if "Frame Counter" in meta else (int(seq) if seq else index)
-            yield BagFrame(image, number, _stamp_ms(msg), meta)
+            yield BagFrame(image, number, stamp_ms, meta)

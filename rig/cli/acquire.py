@@ -62,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stop-distance-from-name", metavar="REGEX", help='read distances from folder (or bag) names, e.g. "(?P<m>[0-9.]+)m"')
     p.add_argument("--distance-m", type=float, metavar="Z", help="a single bag's camera-to-wall distance, m")
     p.add_argument("--topic", help="a bag's depth image topic, when it has several (e.g. /camera/depth/image_rect_raw)")
+    p.add_argument("--stops-in-time", metavar="Z@T0-T1,...", help="one bag holding several stops: each stop's distance "
+                   "(m) and its span in s from the bag's first frame, e.g. 0.5@0-12,1.0@20-32")
+    p.add_argument("--stops-at-gaps", metavar="Z1,Z2,...", help="one bag holding several stops, the recorder paused "
+                   "between them: the distances (m) of the runs of frames between pauses, in order")
     p.set_defaults(func=cmd_import)
 
 
@@ -207,12 +211,12 @@ def cmd_import(args: argparse.Namespace) -> int:
         from protocols.bag_import import import_bags
 
         out = import_bags(args.folder, args.output, import_overrides(args), progress=progress, topic=args.topic,
-                          distance_m=args.distance_m)
-    elif args.distance_m is not None or args.topic is not None:
+                          distance_m=args.distance_m, stops_in_time=args.stops_in_time, stops_at_gaps=args.stops_at_gaps)
+    elif any(v is not None for v in (args.distance_m, args.topic, args.stops_in_time, args.stops_at_gaps)):
         from drivers.errors import FolderImportError
         from drivers.folder.manifest import MANIFEST_NAME
 
-        raise FolderImportError(f"{args.folder}: --distance-m and --topic are for bags; a folder of frames names its "
+        raise FolderImportError(f"{args.folder}: --distance-m, --topic and --stops-* are for bags; a folder of frames names its "
                                 f"stops' distances in {MANIFEST_NAME} (see docs/import.md)")
     else:
         out = import_folder(args.folder, args.output, import_overrides(args), progress=progress)
