@@ -260,7 +260,15 @@ def firmware_transcript(name: str, workdir: Path) -> str:
         from tests.grbl_firmware import GrblFirmware  # python -m tests.grbl_transcripts
 
     with GrblFirmware(workdir, rail_mm=RAIL_MM, x0_mm=START_MM) as firmware:
-        return transcript(firmware.port, SCRIPTS[name])
+        try:
+            return transcript(firmware.port, SCRIPTS[name])
+        except AssertionError as e:  # say what the firmware process and the harness's bridge were doing
+            session = firmware._session
+            proc = session.proc if session is not None else None
+            stderr = workdir / "grbl_sim.stderr"
+            tail = stderr.read_bytes()[-400:].decode("latin-1") if stderr.is_file() else ""
+            raise AssertionError(f"{e}; firmware process: {'exited ' + str(proc.poll()) if proc and proc.poll() is not None else 'running'}"
+                                 f"; bridge error: {session.bridge_error if session else None!r}; stderr tail: {tail!r}") from None
 
 
 def main(argv: list[str]) -> int:
