@@ -264,6 +264,12 @@ class Recording:
             out.append("one stop only: the range dependence rests on that stop's spread of ranges")
         return out
 
+    def exclude(self, label: str, why: str) -> None:
+        """Leave a readable stop out (it contradicts itself or the rest: rig.models.stop_checks); the notes say why."""
+        if label in self._where:
+            del self._where[label]
+            self.skipped.append(f"stop {label!r} (left out of the fit): {why.removeprefix(f'stop {label!r}: ')}")
+
     def stop_labels(self) -> list[str]:
         """Complete, readable stops in capture order (the unreadable ones are named in `skipped`)."""
         keyed = []

@@ -53,7 +53,6 @@ def test_hand_written_file_loads_and_fits(tmp_path):
 
 @pytest.mark.parametrize("damage,message", [
     (lambda f: f["camera"].attrs.__delitem__("baseline_m"), r"/camera lacks attribute\(s\) \['baseline_m'\]"),
-    (lambda f: f["stops"]["1.000m"].__delitem__("m2_m2"), r"stop '1.000m' lacks dataset\(s\) \['m2_m2'\]"),
     (lambda f: f.attrs.__setitem__("format", "something-else"), r"is not a rig recording"),
     (lambda f: f.attrs.__setitem__("format_version", 9), r"newer than this rig reads"),
 ])
@@ -64,6 +63,17 @@ def test_invalid_files_give_one_line_errors(tmp_path, damage, message):
         damage(f)
     with pytest.raises(RecordingError, match=message):
         fit_recording(path)
+
+
+def test_a_stop_lacking_a_dataset_is_named_and_left_out_the_others_fitted(tmp_path):
+    path = tmp_path / "bad.h5"
+    write_by_hand(path)
+    with h5py.File(path, "a") as f:
+        del f["stops"]["1.000m"]["m2_m2"]
+    r = fit_recording(path)
+    assert any(re.search(r"stop '1.000m' \(left out of the fit\): stop '1.000m' lacks dataset\(s\) \['m2_m2'\]", n)
+               for n in r.notes), r.notes
+    assert r.labels == ["1.500m", "2.000m", "2.500m", "3.000m"] and abs(r.fit.lam - 3.0) < 4 * r.fit.se_lam
 
 
 def test_not_hdf5_and_missing_file(tmp_path):

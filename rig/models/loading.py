@@ -15,9 +15,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from protocols.recording import Recording, StopData
+from protocols.recording_errors import RecordingError
 
 from .covariates import StopSource
 from .independence import independence, pooled_lag1
+from .stop_checks import count_problem, range_problem, zero_variance_problems
 
 #: per-stop facts of frame independence (rig.models.independence): the pooled lag-1 sums, frames repeating their
 #: predecessor, pixels kept (two samples or more) and those of them that never changed; NaN: not recorded
@@ -38,20 +40,34 @@ class RecordingRows:
     dropped_zero: int
 
 
-def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bool = False) -> RecordingRows:
+def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bool = False,
+              _excluded: dict[str, str] | None = None) -> RecordingRows:
     """All pixels with at least `min_count` valid samples (with `positive_variance`, also M2 > 0), from every
-    complete stop, with the stop sources their covariates come from."""
+    complete stop, with the stop sources their covariates come from. A stop that contradicts itself or the rest
+    (rig.models.stop_checks) is left out, and the recording notes it (Recording.exclude)."""
     cal = recording.calibration
-    labels = recording.stop_labels()
+    excluded = dict(_excluded or {})
+    labels = [label for label in recording.stop_labels() if label not in excluded]
     rows = _Rows(len(labels) * cal.width * cal.height)
     sources: list[StopSource] = []
     facts: dict[str, list] = {k: [] for k in ("label", "frames", "series_var_inv2", "n_valid", "time_s", *LAG1_FACTS)}
     dropped_zero = 0
-    for i, label in enumerate(labels):
-        stop = recording.stop(label, third_moment=False)
+    zero_shares: list[float] = []
+    for label in labels:
+        try:
+            stop = recording.stop(label, third_moment=False)
+        except RecordingError as e:  # a checksum that fails, a field out of its range: this stop only
+            excluded[label] = str(e).removeprefix(f"{recording.path}: ")
+            continue
+        problem = range_problem(stop) or count_problem(stop)
+        if problem:
+            excluded[label] = problem
+            continue
+        i = len(sources)  # the stop's index among those kept
         s = stop.stats
         with np.errstate(invalid="ignore"):
             keep = (s.count >= max(2, min_count)) & np.isfinite(s.mean_m) & (s.mean_m > 0)
+        zero_shares.append(float((keep & ~(s.m2_m2 > 0)).sum()) / max(int(keep.sum()), 1))
         _add_lag1_facts(facts, s, keep)
         if positive_variance:
             zero = keep & ~(s.m2_m2 > 0)
@@ -60,6 +76,15 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
         rows.add(i, s, keep)
         sources.append(StopSource.of(stop, keep, cal, BRIGHTNESS_WINDOW_PX))
         _add_stop_facts(facts, stop)
+    zero = zero_variance_problems(facts["label"], zero_shares)
+    if zero:  # found only once every stop is read: read again without them (a damaged file only)
+        return read_rows(recording, min_count=min_count, positive_variance=positive_variance,
+                         _excluded={**excluded, **{facts["label"][i]: why for i, why in zero.items()}})
+    for label, why in excluded.items():
+        recording.exclude(label, why)
+    if rows.size == 0 and excluded:
+        raise ValueError(f"{recording.path}: no stop can be fitted; {next(iter(excluded.values()))}; re-record the "
+                         "stops (rig run ... --resume after removing them) or check the depth unit")
     if rows.size == 0:
         raise ValueError(f"{recording.path}: no pixel has 2 or more valid samples; nothing to fit (check the stops and the camera's fill rate)")
     if not np.any(rows.m2[: rows.size] > 0):
