@@ -195,7 +195,7 @@ class RecordingWriter:
         try:
             with h5py.File(self.path, "r") as f:
                 stops = f.get("stops", {})
-                done |= {k for k in stops if bool(stops[k].attrs.get("complete", False))}
+                done |= {k for k in stops if bool(stops[k].attrs.get("complete", False)) and _readable(stops[k])}
         except OSError:
             pass
         return done
@@ -333,3 +333,18 @@ class RecordingWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _readable(g: h5py.Group) -> bool:
+    """Every statistics dataset of a stop reads back (its Fletcher-32 checksums hold): a damaged stop is not done,
+    so --resume records it again and the assembly replaces it. Raw frames are not read (their size)."""
+    try:
+        for name, item in g.items():
+            if isinstance(item, h5py.Group):
+                if not _readable(item):
+                    return False
+            elif name != "raw_depth":
+                item[()]
+    except (OSError, RuntimeError, ValueError, KeyError):
+        return False
+    return True

@@ -10,7 +10,7 @@ from rig.devices import open_devices
 
 
 def record_perpendicular(path: Path, *, seed: int = 0, width: int = 32, frames: int = 100, projector_on: bool = True,
-                         depth_unit_mm: float = 0.05, effects: str = "", stops_m=None, **plan_kw):
+                         depth_unit_mm: float = 0.05, effects: str = "", stops_m=None, resume: bool = False, **plan_kw):
     """Record a small perpendicular experiment; return (path, (k_true, lambda_true), devices)."""
     height = max(2, round(width * 480 / 848))
     cam = f"fake:width={width},height={height},depth_unit_mm={depth_unit_mm},seed={seed}"
@@ -21,7 +21,7 @@ def record_perpendicular(path: Path, *, seed: int = 0, width: int = 32, frames: 
     if stops_m is not None:
         kw["stops_m"] = stops_m
     plan = perpendicular(**kw)
-    Runner(devices.camera, devices.stage, sleep=devices.sleep).run(plan, path)
+    Runner(devices.camera, devices.stage, sleep=devices.sleep).run(plan, path, resume=resume)
     truth = devices.camera.base_truth(CameraSettings(projector_on=projector_on, exposure_us=plan.params["exposure_us"],
                                                      gain=plan.params["gain"]))
     return path, truth, devices

@@ -97,3 +97,25 @@ def test_a_stop_that_cannot_be_read_is_left_out_and_the_others_fitted(rec, tmp_p
     assert "1.250m" not in fit.labels and len(fit.labels) == len(STOPS_M) - 1
     want = fit_recording(_without(rec, tmp_path, "1.250m")).fit
     assert fit.fit.lam == pytest.approx(want.lam, rel=1e-12)
+
+
+def test_resume_records_a_damaged_stop_again(tmp_path):
+    """The note's advice works: --resume records the damaged stop anew and the file is whole again."""
+    from simrig import record_perpendicular
+
+    path = tmp_path / "run.h5"
+    record_perpendicular(path, seed=12, width=24, frames=20, stops_m=STOPS_M[:3])
+    _flip_a_byte_in(path, "1.250m")
+    assert any("left out of the fit" in n for n in fit_recording(path).notes)
+    record_perpendicular(path, seed=12, width=24, frames=20, stops_m=STOPS_M[:3], resume=True)
+    fit = fit_recording(path)
+    assert fit.labels == ["0.750m", "1.250m", "1.750m"] and not any("left out" in n for n in fit.notes), fit.notes
+
+
+def _flip_a_byte_in(path, label):
+    with h5py.File(path, "r") as f:
+        ds = f["stops"][label]["m2_m2"]
+        offset = ds.id.get_offset() if ds.chunks is None else ds.id.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[offset + 20] ^= 0xFF
+    path.write_bytes(bytes(data))
