@@ -24,8 +24,10 @@ STAMP = VENV / ".rig-installed"
 
 
 #: system packages (Debian names) and how to tell they are there: libusb for pyrealsense2,
-#: tmux for the test that drives `rig tui` in a real terminal
-SYSTEM_PACKAGES = {"libusb-1.0-0": lambda: _has_library("libusb-1.0.so.0"), "tmux": lambda: shutil.which("tmux") is not None}
+#: tmux for the test that drives `rig tui` in a real terminal, strace for the tests that fill the disk at one
+#: system call (tests/test_disk_full.py: ENOSPC injected by the kernel)
+SYSTEM_PACKAGES = {"libusb-1.0-0": lambda: _has_library("libusb-1.0.so.0"), "tmux": lambda: shutil.which("tmux") is not None,
+                   "strace": lambda: shutil.which("strace") is not None}
 
 
 def _has_library(name: str) -> bool:

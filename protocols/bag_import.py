@@ -30,7 +30,8 @@ from drivers.folder.stops import MAX_RANGE_MISMATCH, center_counts, distance_fro
 from drivers.stage import NoStage
 
 from .bag_spans import parse_distances, parse_time_spans, stops_at_gaps, stops_in_time
-from .folder_import import PROTOCOL, _check_paths_out
+from .disk_space import is_disk_full
+from .folder_import import PROTOCOL, _check_paths_out, import_stopped
 from .plan import Capture, Configure, Move, Plan
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
 from .stop_journal import journal_dir
@@ -93,9 +94,11 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
         if out.exists():
             raise FolderImportError(f"{out} appeared during the import; choose another output file")
         tmp.rename(out)
-    except BaseException:
+    except BaseException as e:
         tmp.unlink(missing_ok=True)
         shutil.rmtree(journal_dir(tmp), ignore_errors=True)
+        if isinstance(e, (OSError, RuntimeError)) and is_disk_full(e):  # h5py says a full disk as RuntimeError
+            raise import_stopped(src, e) from None
         raise
     return out
 
@@ -200,7 +203,7 @@ def _record(stops: list[BagStop], values: dict[str, Any], src: Path, path: Path,
     except PlanRefused as e:
         raise FolderImportError(f"import of {src} refused before it started: {'; '.join(e.problems)}; nothing was written") from None
     except RunError as e:
-        raise FolderImportError(f"import of {src} stopped ({str(e).split('; ')[0]}); nothing was written") from None
+        raise import_stopped(src, e) from None
 
 
 def _provenance(path: Path, src: Path, facts: list[BagFacts], manifest: dict[str, Any], given: dict[str, Any],

@@ -28,6 +28,7 @@ from drivers.errors import FolderImportError
 from drivers.folder import FolderCamera, ImportSettings, StopSource, check_stops, find_stops, load_settings
 from drivers.stage import NoStage
 
+from .disk_space import is_disk_full
 from .plan import Capture, Configure, Move, Plan
 from .stop_journal import journal_dir
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
@@ -76,9 +77,11 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
         if out.exists():
             raise FolderImportError(f"{out} appeared during the import; choose another output file")
         tmp.rename(out)
-    except BaseException:
+    except BaseException as e:
         tmp.unlink(missing_ok=True)
         shutil.rmtree(journal_dir(tmp), ignore_errors=True)
+        if isinstance(e, (OSError, RuntimeError)) and is_disk_full(e):  # h5py says a full disk as RuntimeError
+            raise import_stopped(src, e) from None
         raise
     return out
 
@@ -103,10 +106,18 @@ def _record(stops: list[StopSource], settings: ImportSettings, shape: tuple[int,
         raise FolderImportError(f"import of {src} refused before it started: {'; '.join(e.problems)}; "
                                 "nothing was written") from None
     except RunError as e:
-        parts = str(e).split("; ")
-        free = next((p.split(" and ")[0] for p in parts if p.startswith("free about")), "")
-        fix = f"; {free} and import again" if free else ""
-        raise FolderImportError(f"import of {src} stopped ({parts[0]}); nothing was written{fix}") from None
+        raise import_stopped(src, e) from None
+
+
+def import_stopped(src: Path, e: BaseException) -> FolderImportError:
+    """The one line for an import the runner (or a full disk) stopped: what stopped it, that nothing was written,
+    and, for a full disk, how much to free."""
+    parts = str(e).split("; ")
+    free = next((p.split(" and ")[0] for p in parts if p.startswith("free about")), "")
+    full = is_disk_full(e) or "disk full" in str(e)
+    fix = f"; {free} and import again" if free else ("; free some space and import again" if full else "")
+    what = parts[0] if isinstance(e, RunError) else f"disk full writing its provenance ({type(e).__name__})"
+    return FolderImportError(f"import of {src} stopped ({what}); nothing was written{fix}")
 
 
 def write_provenance(path: Path, src: Path, manifest: dict[str, Any], overrides: dict[str, Any] | None,

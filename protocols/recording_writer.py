@@ -24,13 +24,13 @@ import h5py
 import numpy as np
 
 from . import stop_journal as journal
-from .disk_space import FILE_OVERHEAD_BYTES, free_bytes, megabytes
+from .disk_space import FILE_OVERHEAD_BYTES, free_bytes, is_disk_full, megabytes
 from .plan import Plan
 from .plan_check import plan_change, resume_problems
 from drivers.camera import CameraCalibration
 
 from .recording import FORMAT, FORMAT_VERSION, FrameSeries, check_format, jsonable, software_version, utc_now
-from .recording_errors import RecordingError
+from .recording_errors import AssemblyError, RecordingError
 from .run_lock import RunLock
 from .stats import PixelStats
 
@@ -319,6 +319,13 @@ class RecordingWriter:
                         src.copy(src[journal.STOP_GROUP], stops, name=label)
                 out.attrs["ended_utc"] = utc_now()
             journal.commit(tmp, self.path)
+        except (OSError, RuntimeError) as e:  # h5py says a full disk as RuntimeError ("errno = 28")
+            tmp.unlink(missing_ok=True)
+            if not is_disk_full(e):
+                raise
+            raise AssemblyError(f"disk full while assembling {self.path} (it needs about {megabytes(need)}); every stop "
+                                 f"stays readable in {journal.journal_dir(self.path)}; free some space and rerun with "
+                                 "--resume") from None
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise

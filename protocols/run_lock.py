@@ -72,8 +72,13 @@ class RunLock:
                 continue
             except OSError as e:  # the folder cannot hold files: the output could not be written either
                 raise self.unwritable(e) from None
-            with os.fdopen(fd, "w") as f:
-                json.dump(info, f)
+            try:
+                with os.fdopen(fd, "w") as f:
+                    json.dump(info, f)
+            except OSError as e:  # a full disk: no lock left behind, and one line
+                self.file.unlink(missing_ok=True)
+                raise RecordingError(f"cannot write {self.path}: no space for its lock file in {self.path.parent} "
+                                     f"({e.strerror or type(e).__name__}); free some space and run the command again") from None
             self.held = True
             return self
         raise RecordingError(f"could not take the lock {self.file}; remove it if no run is writing {self.path}")

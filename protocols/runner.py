@@ -27,6 +27,7 @@ from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, megabytes, size
 from .frame_continuity import FrameContinuity
 from .plan_check import RigLimits, disk_need_bytes, plan_problems, stop_recipes
 from .recording import FrameSeries, RecordingError
+from .recording_errors import AssemblyError
 from .recording_writer import RecordingWriter
 from .stop_journal import journal_dir
 from .stats import MeanImageAccumulator, PixelMomentAccumulator
@@ -207,6 +208,8 @@ class Runner:
             saved = len(recorded) + len(skipped)
             raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; {saved} stops are saved in {path}; "
                            f"free about {megabytes(e.need)} and rerun with --resume") from None
+        except AssemblyError as e:  # every stop is saved; only the final file is missing
+            raise RunError(str(e)) from None
         except (DeviceError, RecordingError) as e:
             raise RunError(f"{e}; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
         except OSError as e:

@@ -1,0 +1,85 @@
+"""A full disk at any write of `rig run` and `rig import`, injected by the kernel: one line, keeps what is saved, no stray file.
+
+The disk is filled by the kernel, not by us: strace injects ENOSPC into one system call of the real command
+(`strace -f -e inject=pwrite64:error=ENOSPC:when=N`), h5py's and Python's writes alike. strace is installed by the
+project's set-up (dev.py), as libusb is. Issue 28 found a 30-line h5py traceback (`RuntimeError: Unable to
+synchronously copy object ... errno = 28`) at every pwrite64 of the final assembly, and a lock file left behind.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from protocols.recording import Recording
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG = [str(Path(sys.executable).parent / "rig")]
+RUN = ["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9,seed=1", "--stage", "fake:",
+       "-o", "run.h5", "--stops", "0.5:1.5:0.5", "--frames", "5", "-q"]
+BAG = ROOT / "tests" / "vendor" / "real" / "realsense" / "single_depth_color_640x480.bag"
+IMPORT = ["import", str(BAG), "-o", "d.h5", "--distance-m", "1.6", "-q"]
+
+
+def _strace() -> str:
+    path = shutil.which("strace")
+    assert path, "strace is not installed; `python3 dev.py setup` installs it (apt-get install strace)"
+    return path
+
+
+def _rig(args: list[str], cwd: Path, inject: tuple[str, int] | None = None) -> subprocess.CompletedProcess:
+    cmd = RIG + args
+    if inject is not None:
+        call, n = inject
+        cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:error=ENOSPC:when={n}", *cmd]
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120)
+
+
+def _calls(args: list[str], cwd: Path, call: str) -> int:
+    """How many times the command makes `call` on a disk with room."""
+    log = cwd / f"{call}.strace"
+    subprocess.run([_strace(), "-f", "-o", str(log), "-e", f"trace={call}", *RIG, *args], cwd=cwd, check=True,
+                   capture_output=True, timeout=120)
+    n = sum(f"{call}(" in line for line in log.read_text().splitlines())
+    for p in cwd.iterdir():
+        if p != log:
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+    log.unlink()
+    return n
+
+
+def _one_line(p: subprocess.CompletedProcess) -> str:
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, (p.returncode, p.stderr[-2000:])
+    assert lines[0].startswith("rig: error: ") and ("disk full" in lines[0] or "no space" in lines[0]), lines[0]
+    return lines[0]
+
+
+def test_a_full_disk_during_a_run_is_one_line_and_resume_finishes_it(tmp_path):
+    total = _calls(RUN, tmp_path, "pwrite64")
+    assert total > 20  # the final assembly writes the recording with pwrite64
+    for inject in [("write", 1), ("write", 3), ("pwrite64", 1), ("pwrite64", total // 2), ("pwrite64", total)]:
+        line = _one_line(_rig(RUN, tmp_path, inject))
+        left = sorted(p.name for p in tmp_path.iterdir())
+        assert set(left) <= {"run.h5", "run.h5.stops"}, (inject, left)  # no lock, no .assembling, no .tmp
+        if "run.h5" in left:
+            assert "rerun with --resume" in line, line
+            assert _rig([*RUN, "--resume"], tmp_path).returncode == 0
+            with Recording(tmp_path / "run.h5") as rec:
+                assert rec.stop_labels() == ["0.500m", "1.000m", "1.500m"] and "ended_utc" in rec.attrs
+        else:
+            assert "run the command again" in line, line
+        assert sorted(p.name for p in tmp_path.iterdir()) in ([], ["run.h5"])
+        (tmp_path / "run.h5").unlink(missing_ok=True)
+
+
+def test_a_full_disk_during_an_import_is_one_line_and_leaves_nothing(tmp_path):
+    total = _calls(IMPORT, tmp_path, "pwrite64")
+    for n in (1, total - 2, total):  # the assembly, and the provenance written at the end
+        line = _one_line(_rig(IMPORT, tmp_path, ("pwrite64", n)))
+        assert "nothing was written; free some space and import again" in line, line
+        assert list(tmp_path.iterdir()) == [], [p.name for p in tmp_path.iterdir()]
