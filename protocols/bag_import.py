@@ -31,6 +31,7 @@ from drivers.stage import NoStage
 
 from .bag_spans import parse_distances, parse_time_spans, stops_at_gaps, stops_in_time
 from .disk_space import is_disk_full
+from .leftovers import remove_dead_leftovers
 from .folder_import import PROTOCOL, _check_paths_out, import_stopped
 from .plan import Capture, Configure, Move, Plan
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
@@ -86,6 +87,7 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
     report(ProgressEvent("message", text=f"importing {sum(s.n_frames for s in stops)} frames in {len(stops)} "
                                          f"stop{'s' * (len(stops) != 1)} from {src} ({facts[0].extra['bag_format']})"))
     out.parent.mkdir(parents=True, exist_ok=True)
+    remove_dead_leftovers(out)  # a killed import's temporary recording, its lock and stop folder
     tmp = out.with_name(f".{out.name}.{os.getpid()}.importing")
     tmp.unlink(missing_ok=True)
     try:

@@ -29,6 +29,7 @@ from drivers.folder import FolderCamera, ImportSettings, StopSource, check_stops
 from drivers.stage import NoStage
 
 from .disk_space import is_disk_full
+from .leftovers import remove_dead_leftovers
 from .plan import Capture, Configure, Move, Plan
 from .stop_journal import journal_dir
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
@@ -69,6 +70,7 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
     n_frames = sum(s.n_frames for s in stops)
     report(ProgressEvent("message", text=f"importing {n_frames} frames in {len(stops)} stops from {src}"))
     out.parent.mkdir(parents=True, exist_ok=True)
+    remove_dead_leftovers(out)  # a killed import's temporary recording, its lock and stop folder
     tmp = out.with_name(f".{out.name}.{os.getpid()}.importing")
     tmp.unlink(missing_ok=True)
     try:

@@ -30,6 +30,7 @@ from .plan_check import plan_change, resume_problems
 from drivers.camera import CameraCalibration
 
 from .recording import FORMAT, FORMAT_VERSION, FrameSeries, check_format, jsonable, software_version, utc_now
+from .leftovers import remove_dead_leftovers
 from .recording_errors import AssemblyError, RecordingError
 from .run_lock import RunLock
 from .stats import PixelStats
@@ -89,6 +90,7 @@ class RecordingWriter:
         self._open_stop: tuple[h5py.File, str, Path | None] | None = None
         self.lock = RunLock(self.path).acquire()
         try:
+            remove_dead_leftovers(self.path)  # a killed writer's copies and temporary files (protocols.leftovers)
             self._prepare()
         except BaseException:
             self.lock.release()

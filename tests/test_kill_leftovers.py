@@ -1,0 +1,66 @@
+"""A process killed at an exact system call leaves nothing the next run, resume or import does not clean up.
+
+The kill comes from the kernel at the N-th call (`strace -f -e inject=pwrite64:signal=KILL:when=N`), in the real
+command. Issue 28 found that a kill during the final assembly left `.run.h5.<pid>.assembling` (a full-size copy)
+that no later --resume removed (14 of 40 injections), and a kill in the header write left `run.h5.<pid>.tmp`.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from protocols.leftovers import dead_leftovers
+from protocols.recording import Recording
+from test_enospc_injection import IMPORT, RUN, _calls, _strace
+
+RIG = [str(Path(sys.executable).parent / "rig")]
+
+
+def _killed(args: list[str], cwd: Path, call: str, n: int) -> int:
+    cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:signal=KILL:when={n}",
+           *RIG, *args]
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, timeout=120).returncode
+
+
+def test_kills_during_a_run_leave_nothing_after_the_resume(tmp_path):
+    total = _calls(RUN, tmp_path, "pwrite64")
+    strays = 0
+    for call, n in [("write", 2), ("write", 4), ("pwrite64", 2), ("pwrite64", total // 2), ("pwrite64", total - 1)]:
+        _killed(RUN, tmp_path, call, n)
+        strays += len([p for p in tmp_path.iterdir() if p.name not in ("run.h5", "run.h5.stops", "run.h5.lock")])
+        again = [*RUN, "--resume"] if (tmp_path / "run.h5").exists() else RUN
+        p = subprocess.run(RIG + again, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert p.returncode == 0, (call, n, p.stderr)
+        assert sorted(x.name for x in tmp_path.iterdir()) == ["run.h5"], (call, n, list(tmp_path.iterdir()))
+        with Recording(tmp_path / "run.h5") as rec:
+            assert rec.stop_labels() == ["0.500m", "1.000m", "1.500m"] and "ended_utc" in rec.attrs
+        (tmp_path / "run.h5").unlink()
+    assert strays > 0  # the kills did leave something behind, which the next run removed
+
+
+def test_a_killed_import_is_cleaned_up_by_the_next_import(tmp_path):
+    total = _calls(IMPORT, tmp_path, "pwrite64")
+    _killed(IMPORT, tmp_path, "pwrite64", total // 2)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left and all(".importing" in name for name in left), left
+    p = subprocess.run(RIG + IMPORT, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["d.h5"]
+
+
+def test_a_live_writer_s_files_are_never_taken_for_leftovers(tmp_path):
+    out = tmp_path / "run.h5"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    mine = [tmp_path / f".run.h5.{os.getpid()}.assembling", tmp_path / f"run.h5.{os.getpid()}.tmp"]
+    theirs = [tmp_path / f".run.h5.{dead.pid}.assembling", tmp_path / f"run.h5.{dead.pid}.tmp",
+              tmp_path / f".run.h5.{dead.pid}.importing", tmp_path / f".run.h5.{dead.pid}.importing.lock",
+              tmp_path / f"..run.h5.{dead.pid}.importing.{dead.pid}.assembling",
+              tmp_path / "run.h5.stops" / f"0.500m.h5.{dead.pid}.tmp"]
+    (tmp_path / "run.h5.stops").mkdir()
+    for p in mine + theirs + [tmp_path / ".other.h5.1.assembling"]:
+        p.write_bytes(b"x")
+    assert sorted(dead_leftovers(out)) == sorted(theirs)
