@@ -14,6 +14,7 @@ reported done is readable and `--resume` carries on (the mechanism: `stop_journa
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -34,6 +35,10 @@ from .leftovers import remove_dead_leftovers
 from .recording_errors import AssemblyError, RecordingError
 from .run_lock import RunLock
 from .stats import PixelStats
+
+#: a recording up to this size is assembled in memory (statistics: ~15 MB a stop at 848x480; peak memory about 3x
+#: the size); bigger ones (raw frames kept) on disk
+IN_MEMORY_ASSEMBLY_BYTES = 256 * 2**20
 
 #: what must be the same for a run to be resumed into a file (what may differ: docs/reliability.md)
 CAMERA_IDENTITY = ("model", "serial", "width", "height", "depth_scale_m", "simulated")
@@ -311,16 +316,19 @@ class RecordingWriter:
                                  f"{megabytes(free)} are free; free about {megabytes(need - free)} and rerun with --resume")
         tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.assembling")
         try:
-            shutil.copyfile(self.path, tmp)
-            with h5py.File(tmp, "a") as out:
-                stops = out.require_group("stops")
-                for label, p in files.items():
-                    if label in stops:
-                        del stops[label]
-                    with h5py.File(p, "r") as src:
-                        src.copy(src[journal.STOP_GROUP], stops, name=label)
-                out.attrs["ended_utc"] = utc_now()
-            journal.commit(tmp, self.path)
+            if need <= IN_MEMORY_ASSEMBLY_BYTES:
+                # HDF5 gets no disk to write to: it assembles in memory and Python writes the file whole, so a full
+                # disk is a plain OSError (HDF5 1.14 crashes in close() after a failed write: SIGSEGV, found by
+                # injecting ENOSPC at each pwrite64, tests/fault_matrix.py)
+                image = io.BytesIO(self.path.read_bytes())
+                with h5py.File(image, "a") as out:
+                    _copy_stops(out, files)
+                journal.write_bytes_durably(image.getvalue(), self.path)
+            else:  # too big for memory (raw frames kept): assembled on disk, beside the recording
+                shutil.copyfile(self.path, tmp)
+                with h5py.File(tmp, "a") as out:
+                    _copy_stops(out, files)
+                journal.commit(tmp, self.path)
         except (OSError, RuntimeError) as e:  # h5py says a full disk as RuntimeError ("errno = 28")
             tmp.unlink(missing_ok=True)
             if not is_disk_full(e):
@@ -342,6 +350,17 @@ class RecordingWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _copy_stops(out: h5py.File, files: dict[str, Path]) -> None:
+    """Each completed stop file's group into the recording (replacing a stop of that label), then `ended_utc`."""
+    stops = out.require_group("stops")
+    for label, p in files.items():
+        if label in stops:
+            del stops[label]
+        with h5py.File(p, "r") as src:
+            src.copy(src[journal.STOP_GROUP], stops, name=label)
+    out.attrs["ended_utc"] = utc_now()
 
 
 def _readable(g: h5py.Group) -> bool:

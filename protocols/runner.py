@@ -206,6 +206,10 @@ class Runner:
             raise RunError("run interrupted; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
         except _DiskFull as e:
             saved = len(recorded) + len(skipped)
+            if saved == 0 and created:  # nothing to resume: the empty file goes, and the command is run again
+                self._saved_message(path, recorded, skipped, len(labels), created)
+                raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; nothing was recorded; free about "
+                               f"{megabytes(e.need)} and run the command again") from None
             raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; {saved} stops are saved in {path}; "
                            f"free about {megabytes(e.need)} and rerun with --resume") from None
         except AssemblyError as e:  # every stop is saved; only the final file is missing
@@ -216,6 +220,10 @@ class Runner:
             if not is_disk_full(e):
                 raise
             saved = len(recorded) + len(skipped)
+            if saved == 0 and created:
+                self._saved_message(path, recorded, skipped, len(labels), created)
+                raise RunError("disk full before the first stop was saved; nothing was recorded; free some space and "
+                               "run the command again") from None
             raise RunError(f"disk full; {saved} stops are saved in {path}; free space and rerun with --resume") from None
         self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
         return RunResult(path, recorded, skipped)

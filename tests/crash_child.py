@@ -1,6 +1,6 @@
 """A small simulated run that SIGKILLs itself at an exact instant (for tests/test_crash_safety.py).
 
-    python tests/crash_child.py OUT.h5 POINT N [--raw] [--resume] [--stops 0.5,1.0,...]
+    python tests/crash_child.py OUT.h5 POINT N [--raw] [--resume] [--stops 0.5,1.0,...] [--on-disk-assembly]
 
 POINT is a function the writer calls (wrapped here, in this test process only: nothing in rig
 knows about it) and N which call of it dies: the process kills itself just *before* the call
@@ -67,6 +67,8 @@ def main() -> None:
         if e.kind == "stop_done":
             print(f"done {e.stop}", flush=True)
 
+    if "--on-disk-assembly" in sys.argv:  # as for a recording too big to assemble in memory
+        recording_writer.IN_MEMORY_ASSEMBLY_BYTES = 0
     if point != "none":
         arm(point, n)
     Runner(devices.camera, devices.stage, sleep=lambda s: None, progress=progress).run(plan, out, resume=resume)

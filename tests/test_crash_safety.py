@@ -27,10 +27,13 @@ EXACT = [
     ("before:write_bytes_durably", 4), ("after:write_bytes_durably", 4),  # the third stop
     ("before:replace", 1), ("after:replace", 1), ("before:replace", 5), ("after:replace", 5),
     ("before:fsync_dir", 3), ("before:h5_flush", 2), ("after:h5_flush", 3), ("before:h5_close", 4),
-    ("before:copyfile", 1), ("after:copyfile", 1),  # assembly: the header's copy
-    ("before:h5_copy", 1), ("before:h5_copy", 7), ("after:h5_copy", 11),  # assembly: copying the stops
-    ("before:commit", 1), ("after:commit", 1), ("before:rmtree", 1),  # assembly: its rename, the clean-up
+    ("before:h5_copy", 1), ("before:h5_copy", 7), ("after:h5_copy", 11),  # assembly (in memory): copying the stops
+    ("before:write_bytes_durably", 13), ("after:write_bytes_durably", 13),  # assembly: the file written whole
+    ("before:replace", 13), ("after:replace", 13), ("before:rmtree", 1),  # assembly: its rename, the clean-up
 ]
+# the assembly of a recording too big for memory (raw frames: rig assembles those on disk), forced for a small one
+EXACT_ON_DISK = [("before:copyfile", 1), ("after:copyfile", 1), ("before:h5_copy", 7),
+                 ("before:commit", 1), ("after:commit", 1)]
 EXACT_RAW = [("before:commit", 2), ("after:commit", 2), ("before:h5_close", 3), ("after:h5_close", 6)]
 
 
@@ -71,6 +74,14 @@ def check_after_kill(out: Path, done: list[str], raw: bool) -> None:
 def test_a_kill_at_an_exact_instant_loses_nothing_reported_done(tmp_path, point, n):
     out = tmp_path / "run.h5"
     code, done = child(out, point, n)
+    assert code == -signal.SIGKILL, (code, done)
+    check_after_kill(out, done, raw=False)
+
+
+@pytest.mark.parametrize("point,n", EXACT_ON_DISK)
+def test_a_kill_while_assembling_on_disk_loses_nothing_reported_done(tmp_path, point, n):
+    out = tmp_path / "run.h5"
+    code, done = child(out, point, n, "--on-disk-assembly")
     assert code == -signal.SIGKILL, (code, done)
     check_after_kill(out, done, raw=False)
 
