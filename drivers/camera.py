@@ -184,6 +184,9 @@ class DepthCamera(abc.ABC):
     #: a recording played back (a file, a bag): its settings are what they were when it was made and cannot be
     #: changed, so the runner records them as they were, with a note, instead of refusing them (issue 31)
     plays_back: bool = False
+    #: the IR image's top value (DN) when it is below its dtype's top (e.g. 1023 for 10-bit IR in uint16); None: the
+    #: dtype's top (255 for uint8). A sample there is clipped: the runner counts them per pixel (ir_saturated)
+    ir_full_scale_dn: int | None = None
 
     def __enter__(self) -> "DepthCamera":
         self.open()

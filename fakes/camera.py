@@ -46,6 +46,9 @@ FAKE_CAMERA_OPTIONS = OptionTable("fake", "camera", (
     Option("temporal_alpha", float, None, between(0.01, 1), "",
            "a temporal post-filter (RealSense/OAK-D style): out = alpha in + (1 - alpha) previous out", example=0.4,
            absent="off"),
+    Option("ir_gain", float, 1.0, _NUMBER, "", "IR image gain (DN per photo-electron times this): above about 2, the "
+           "10-bit IR clips at 1023 near the wall with the projector on, as real IR images saturate at short range",
+           example=4),
 ), error=CameraError)
 
 
@@ -58,6 +61,8 @@ class FakeCamera(DepthCamera):
         must not say what was simulated).
     drop, duplicate: the probability that a frame is lost on the way (its number and time pass
         without it) or handed over twice, as a busy USB bus does.
+    ir_gain: the IR image's DN per photo-electron, times IR_DN_PER_E; the 10-bit image clips at IR_MAX_DN (its
+        `ir_full_scale_dn`), near the wall with the projector on when the gain is high, as real IR images do.
     temporal_alpha: smooth the depth over time as a camera's temporal post-filter does (exponential smoothing
         with this weight on the new frame; None: off): consecutive frames become correlated.
     light: "day" (room light on the wall), "night" (the projector is the only light), or "auto":
@@ -66,6 +71,7 @@ class FakeCamera(DepthCamera):
     """
 
     name = "fake-camera"
+    ir_full_scale_dn = IR_MAX_DN
 
     def __init__(
         self,
@@ -86,6 +92,7 @@ class FakeCamera(DepthCamera):
         drop: float = 0.0,
         duplicate: float = 0.0,
         temporal_alpha: float | None = None,
+        ir_gain: float = 1.0,
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -113,6 +120,7 @@ class FakeCamera(DepthCamera):
         self.drop = drop
         self.duplicate = duplicate
         self.temporal_alpha = temporal_alpha
+        self.ir_gain = ir_gain
         self._filter: tuple[StopField, np.ndarray] | None = None  # the temporal filter's memory, per stop
         self._render: tuple[StopField, _RenderArrays] | None = None
         self._settings = CameraSettings()
@@ -156,6 +164,7 @@ class FakeCamera(DepthCamera):
             drop=o["drop"],
             duplicate=o["duplicate"],
             temporal_alpha=o["temporal_alpha"],
+            ir_gain=o["ir_gain"],
         )
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -179,6 +188,7 @@ class FakeCamera(DepthCamera):
                 "effects": [e.to_dict() for e in self.effects],
                 "light": self.light,
                 "temporal_alpha": self.temporal_alpha,
+                "ir_gain": self.ir_gain,
                 "seed": self.seed,
                 "fps": self.fps,
             },
@@ -321,8 +331,8 @@ class FakeCamera(DepthCamera):
         """Left IR image in DN (10-bit in uint16): dots (projector on) or texture, plus ambient light, with shot noise."""
         out = np.empty(r.ir_light_e.shape, np.uint16)
         uniform = self._ir_rng.random(out.shape, dtype=np.float32)
-        ir_from_uniform(uniform, r.ir_light_e, r.ir_noise_e, np.float32(IR_DN_PER_E * self._settings.gain / 16.0),
-                        IR_MAX_DN, out)
+        dn_per_e = IR_DN_PER_E * self.ir_gain * self._settings.gain / 16.0
+        ir_from_uniform(uniform, r.ir_light_e, r.ir_noise_e, np.float32(dn_per_e), IR_MAX_DN, out)
         return out
 
     def _require_open(self) -> None:

@@ -24,7 +24,7 @@ def stop_bytes(shape: tuple[int, int], n_frames: int, *, keep_raw: bool = False,
                ambient: bool = True) -> int:
     """Upper bound on a stop's file size, bytes."""
     pixels = int(shape[0]) * int(shape[1])
-    per_pixel = 4 + 4 * 8 + (4 if ir else 0) + (4 if ambient else 0)
+    per_pixel = 4 + 4 * 8 + (8 if ir else 0) + (4 if ambient else 0)  # ir: ir_mean and ir_saturated
     raw = 2 * pixels * int(n_frames) if keep_raw else 0
     return int(1.01 * (pixels * per_pixel + raw)) + 45 * int(n_frames) + FILE_OVERHEAD_BYTES
 

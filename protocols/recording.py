@@ -78,6 +78,9 @@ class StopData:
     ir_mean: np.ndarray | None = None
     ambient_ir_mean: np.ndarray | None = None
     attrs: dict[str, Any] = field(default_factory=dict)
+    #: per pixel, IR samples at the sensor's full scale `ir_full_scale_dn` (clipped); None: not checked (older files)
+    ir_saturated: np.ndarray | None = None
+    ir_full_scale_dn: float | None = None
 
     @property
     def projector_on(self) -> bool:
@@ -245,9 +248,11 @@ class Recording:
                            f"{', ...' if len(missing) > 5 else ''}); rig run ... --resume records the rest")
         elif "ended_utc" not in self.attrs and not self.in_progress and labels:
             out.append("the run did not finish (no ended_utc); rig run ... --resume records the rest")
-        lost, as_recorded = [], {}
+        lost, as_recorded, saturated = [], {}, {}
         for label in labels:
             a = self._group(label).attrs
+            if int(a.get("ir_saturated_pixels", 0)):
+                saturated[label] = int(a["ir_saturated_pixels"])
             dropped, repeated = int(a.get("frames_dropped", 0)), int(a.get("frames_duplicated", 0))
             if dropped or repeated:
                 lost.append(f"{label} {dropped} dropped, {repeated} duplicated")
@@ -259,6 +264,8 @@ class Recording:
         if lost:
             out.append("frames lost or repeated on the way (duplicates left out): " + "; ".join(lost[:5])
                        + ("; ..." if len(lost) > 5 else ""))
+        if saturated:
+            out.append(saturation_note(saturated, self.calibration.width * self.calibration.height))
         out += [f"skipped {s}" for s in self.skipped]
         if len(labels) == 1 and self.protocol != "tilted":
             out.append("one stop only: the range dependence rests on that stop's spread of ranges")
@@ -349,6 +356,8 @@ class Recording:
             ir_mean=g["ir_mean"][()] if "ir_mean" in g else None,
             ambient_ir_mean=g["ambient_ir_mean"][()] if "ambient_ir_mean" in g else None,
             attrs=dict(a),
+            ir_saturated=g["ir_saturated"][()] if "ir_saturated" in g else None,
+            ir_full_scale_dn=float(g["ir_saturated"].attrs.get("full_scale_dn", np.nan)) if "ir_saturated" in g else None,
         )
         check_stop(self.path, stop, (self.calibration.height, self.calibration.width))
         return stop
@@ -366,6 +375,15 @@ class Recording:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def saturation_note(pixels_by_stop: dict[str, int], pixels_per_stop: int) -> str:
+    """The note for IR clipped at the sensor's top: how many pixel-stops, where, and what was done with them."""
+    where = [f"{label} {n / max(pixels_per_stop, 1):.0%}" for label, n in pixels_by_stop.items()]
+    return (f"IR saturated (samples at the sensor's full scale) at {sum(pixels_by_stop.values())} pixel-stops ("
+            + ", ".join(where[:5]) + (", ..." if len(where) > 5 else "") + "): their brightness, and that of pixels smoothed "
+            "with them, is only a lower bound, so it is kept out of the brightness covariates and brightness checks "
+            "(their ranges are fitted as any)")
 
 
 #: the nearest and farthest ranges a depth camera's statistics can hold, m (outside: wrong units)
@@ -386,11 +404,13 @@ def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
         raise bad("count", f"has shape {st.count.shape}, but the camera is {shape[1]}x{shape[0]}",
                   "a recording holds one camera resolution; record the stop again into a new file")
     for name, arr in (("ir_mean", s.ir_mean), ("ambient_ir_mean", s.ambient_ir_mean), ("lag1_pairs", st.lag1_pairs),
-                      ("lag1_m2", st.lag1_m2)):
+                      ("lag1_m2", st.lag1_m2), ("ir_saturated", s.ir_saturated)):
         if arr is not None and arr.shape != st.count.shape:
             raise bad(name, f"has shape {arr.shape}, not the stop's {st.count.shape}")
     if st.lag1_pairs is not None and np.any(st.lag1_pairs >= np.maximum(st.count, 1)):
         raise bad("lag1_pairs", "has more consecutive pairs than samples at some pixel")
+    if s.ir_saturated is not None and s.n_frames > 0 and np.any(s.ir_saturated > s.n_frames):
+        raise bad("ir_saturated", f"counts more clipped samples than the stop's {s.n_frames} frames at some pixel")
     count = st.count
     if not np.issubdtype(count.dtype, np.number) or not np.all(np.isfinite(count)) or np.any(count < 0) \
             or np.any(count != np.round(count)):

@@ -239,8 +239,12 @@ class RecordingWriter:
                                 chunks=(1, *shape), compression="gzip", compression_opts=1)
 
     def end_stop(self, g: h5py.Group, *, stats: PixelStats, series: FrameSeries, ir_mean: np.ndarray | None,
-                 ambient_ir_mean: np.ndarray | None, extra_attrs: dict[str, Any] | None = None) -> None:
-        """Fill the stop and make it durable: when this returns, the stop survives any crash."""
+                 ambient_ir_mean: np.ndarray | None, extra_attrs: dict[str, Any] | None = None,
+                 ir_saturated: np.ndarray | None = None, ir_full_scale_dn: float | None = None) -> None:
+        """Fill the stop and make it durable: when this returns, the stop survives any crash.
+
+        ir_saturated: per pixel, the IR samples at the full scale `ir_full_scale_dn` (clipped), written with
+        ir_mean, and the pixels with any as the stop's `ir_saturated_pixels` (docs/data-format.md)."""
         if self._open_stop is None:
             raise RecordingError("end_stop without begin_stop")
         f, label, partial = self._open_stop
@@ -260,6 +264,10 @@ class RecordingWriter:
             g.attrs["frames_repeated"] = int(stats.frames_repeated or 0)
         if ir_mean is not None:
             g.create_dataset("ir_mean", data=ir_mean, **comp)
+            if ir_saturated is not None and ir_full_scale_dn is not None:
+                g.create_dataset("ir_saturated", data=ir_saturated.astype(np.uint32), **comp)
+                g["ir_saturated"].attrs["full_scale_dn"] = float(ir_full_scale_dn)
+                g.attrs["ir_saturated_pixels"] = int(np.count_nonzero(ir_saturated))
         if ambient_ir_mean is not None:
             g.create_dataset("ambient_ir_mean", data=ambient_ir_mean, **comp)
         fr = g.create_group("frames")

@@ -327,7 +327,7 @@ class Runner:
                 shape: tuple[int, int], info, measured_m: float) -> None:
         raw = writer.raw_frames(g, step.n_frames, shape) if step.keep_raw else None
         acc = PixelMomentAccumulator(shape, info.depth_scale_m)
-        ir_acc = MeanImageAccumulator()
+        ir_acc = MeanImageAccumulator(self.camera.ir_full_scale_dn)
         cy, cx = center_box(shape)
         series = {k: np.empty(step.n_frames, dtype) for k, dtype in (
             ("frame_number", np.int64), ("timestamp_ms", np.float64), ("center_mean_m", np.float64),
@@ -366,6 +366,7 @@ class Runner:
         fill = float(np.mean(stats.count)) / step.n_frames
         writer.end_stop(
             g, stats=stats, series=FrameSeries(**series), ir_mean=ir_acc.result(), ambient_ir_mean=ambient,
+            ir_saturated=ir_acc.saturated, ir_full_scale_dn=ir_acc.full_scale_dn,
             extra_attrs={"frames_refused": refused, "frames_dropped": continuity.dropped,
                          "frames_duplicated": continuity.duplicated, "measured_position_end_m": measured_end,
                          **self._as_recorded(requested, series)},

@@ -199,16 +199,30 @@ def _fold(depth, shift, count, s1, s2, s3, s4, prev, pairs, lag_xy, lag_x_plus_y
 
 
 class MeanImageAccumulator:
-    """Running mean of images (e.g. the left IR image), in float64."""
+    """Running mean of images (e.g. the left IR image), in float64, and per pixel the samples at the image's full
+    scale (clipped: the sensor's top, so the true brightness there is unknown and the mean only a lower bound).
 
-    def __init__(self) -> None:
+    full_scale_dn: the top value the camera gives (e.g. 1023 for 10-bit IR in uint16); None: the integer dtype's
+    top (255 for uint8, 65535 for uint16). A float image is not checked (`saturated` stays None).
+    """
+
+    def __init__(self, full_scale_dn: int | None = None) -> None:
         self.sum: np.ndarray | None = None
         self.n = 0
+        self.full_scale_dn = full_scale_dn
+        #: per pixel, samples at or above full scale (exact, uint32); None: not checked
+        self.saturated: np.ndarray | None = None
 
     def add(self, image: np.ndarray) -> None:
         if self.sum is None:
             self.sum = np.zeros(image.shape, np.float64)
+            if self.full_scale_dn is None and np.issubdtype(image.dtype, np.integer):
+                self.full_scale_dn = int(np.iinfo(image.dtype).max)
+            if self.full_scale_dn is not None:
+                self.saturated = np.zeros(image.shape, np.uint32)
         self.sum += image
+        if self.saturated is not None:
+            self.saturated += image >= self.full_scale_dn
         self.n += 1
 
     def result(self) -> np.ndarray | None:

@@ -15,7 +15,7 @@ import h5py
 import pytest
 
 from rig.cli import main
-from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN, NOT_INDEPENDENT
+from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN, NOT_INDEPENDENT, SATURATED_IR
 from rig.simulation.validation import run_trial
 
 SEED = 1000
@@ -28,8 +28,9 @@ SIZE = dict(width=53)
 SHORTFALLS = {"light_falloff": "read_noise + slant_range then stops beyond noise: sigma by radius (issue 30)"}
 #: noisy_confidence takes 2.5-4 min a trial: the docs' table (rig validate-diagnosis) runs it, the suite does not
 SUITE = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORTFALLS[s])) if s in SHORTFALLS else s
-         for s in ALL_SCENARIOS if s not in ("noisy_confidence", *NOT_INDEPENDENT)]
-# temporal_filter (frames not independent) runs cheaper, without the path: tests/test_independence.py
+         for s in ALL_SCENARIOS if s not in ("noisy_confidence", *NOT_INDEPENDENT, *SATURATED_IR)]
+# temporal_filter (frames not independent) runs cheaper, without the path: tests/test_independence.py; and
+# ambient_saturated_ir (IR clipped near the wall) on a smaller image: tests/test_ir_saturation.py
 
 
 @pytest.mark.parametrize("effect", SUITE)

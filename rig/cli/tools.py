@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--first-seed", type=int, default=1000)
     p.add_argument("--effects", default=",".join(ALL_SCENARIOS),
                    help="comma-separated scenarios (default: all: none, each catalogue effect, a coarse depth unit, "
-                        "pairs, effects the catalogue lacks)")
+                        "pairs, effects the catalogue lacks, frames not independent, IR saturated near the wall)")
     p.add_argument("--jobs", type=int, help="trials at a time, in parallel processes (default: one per core)")
     p.add_argument("--json", help="also write the trials here")
     p.set_defaults(func=cmd_validate)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..models.covariates import brightness_left_out
 from ..models.determinacy import lambda_status
 from .verdict import Diagnosis
 
@@ -21,6 +22,9 @@ def render_text(diag: Diagnosis) -> str:
                      ("by IR brightness", r.by_brightness), ("by incidence angle", r.by_incidence)):
         if b is None:
             continue
+        if b is r.by_brightness and brightness_left_out(d):
+            title += (f" ({brightness_left_out(d):,} pixel-stops left out: saturated IR, whose brightness is only a lower "
+                      "bound)")
         lines.append(f"  {title}:")
         for lab, lr, se, fl in zip(b.labels, b.log_ratio, b.se_log, b.flagged):
             lines.append(f"    {lab:<24} {np.exp(lr):7.3f}  (+/- {2 * se * np.exp(lr):.3f}){' *' if fl else ''}")

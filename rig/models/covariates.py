@@ -45,6 +45,10 @@ class StopSource:
     def of(cls, stop: StopData, keep: np.ndarray, cal: CameraCalibration, window_px: int) -> "StopSource":
         ir = smoothed(stop.ir_mean, window_px).astype(np.float32) if stop.ir_mean is not None else None
         amb = ambient_ratio(stop.ir_mean, stop.ambient_ir_mean, window_px)
+        clipped = clipped_nearby(stop.ir_saturated, window_px)
+        if clipped is not None:  # saturated brightness is not a brightness: no covariate value there
+            ir = np.where(clipped, np.float32(np.nan), ir) if ir is not None else None
+            amb = np.where(clipped, np.nan, amb) if amb is not None else None
         d_var, z_c = drift_variance_m2(stop)
         return cls(ir, amb.astype(np.float32) if amb is not None else None, plane_normal(stop.stats.mean_m, keep, cal),
                    drift_inverse_variance(stop), d_var, z_c, max(stop.n_frames, 1), stop.projector_on)
@@ -109,6 +113,34 @@ def smoothed(image: np.ndarray, window_px: int) -> np.ndarray:
     window); illumination changes slowly across the image, so it survives. Borders reflect.
     """
     return gaussian_filter(image.astype(np.float64), sigma=window_px, mode="reflect")
+
+
+#: the share of a pixel's smoothed brightness that may come from saturated pixels before it is no brightness: a
+#: clipped pixel's light is unknown above full scale, so the smoothed value is low by up to this share times what
+#: the clipped pixels lack (kept: low by under 1 % of a full scale while they lack less than one). A lone
+#: clipped pixel weighs 1 / (2 pi window_px^2) = 0.3 % at its own place (window 7 px): away from the border, none left out
+CLIPPED_SHARE = 0.01
+
+
+def clipped_nearby(ir_saturated: np.ndarray | None, window_px: int) -> np.ndarray | None:
+    """Pixels whose smoothed brightness (`smoothed`) draws more than CLIPPED_SHARE of its weight from saturated
+    pixels: those with any IR sample at full scale (their mean is only a lower bound). None: not checked."""
+    if ir_saturated is None:
+        return None
+    sat = ir_saturated > 0
+    if not sat.any():
+        return sat
+    return smoothed(sat, window_px) > CLIPPED_SHARE
+
+
+def brightness_left_out(d) -> int:
+    """Rows (pixel-stops) of `d` whose stop has an IR image but whose brightness was left out (NaN) because
+    saturated pixels make it only a lower bound (`clipped_nearby`)."""
+    ir = d.ir if d.sources is not None else None
+    if ir is None:
+        return 0
+    has_ir = np.array([src.ir_dn is not None for src in d.sources], bool)
+    return int(np.count_nonzero(np.isnan(ir) & has_ir[d.stop])) if has_ir.any() else 0
 
 
 def ambient_ratio(ir_mean: np.ndarray | None, ambient_ir_mean: np.ndarray | None, window_px: int) -> np.ndarray | None:

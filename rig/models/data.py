@@ -78,10 +78,10 @@ class ModelData(ShapeStatistics):
     z_m: pixel mean range, m; m2_m2: sum of (z_i - z_mean)^2 over the pixel's samples, m^2; m4_m4: sum of
     (z_i - z_mean)^4, m^4 (NaN where not recorded); n: valid samples; stop: index of the stop the row comes
     from; u_px, v_px: pixel column and row; ir: mean IR brightness, DN, smoothed over the matching window
-    (NaN where not recorded); fill: fraction of the stop's frames in which the pixel was valid; rho2: squared
+    (NaN where not recorded or the IR saturated: covariates.clipped_nearby); fill: fraction of the stop's frames in which the pixel was valid; rho2: squared
     normalised radius ((u-cx)/fx)^2 + ((v-cy)/fy)^2; cos_inc: cosine of the incidence angle on a plane fitted
     to the stop's mean depth; ambient_ratio: ambient / pattern brightness from the projector-off frames (NaN
-    if none); drift_var_m2: variance of the stop's mean depth over its frames, beyond noise, scaled to this
+    if none, or saturated); drift_var_m2: variance of the stop's mean depth over its frames, beyond noise, scaled to this
     pixel's range; projector_on: the stop's projector state; x_norm, y_norm: (u - cx) / fx, (v - cy) / fy.
     """
 

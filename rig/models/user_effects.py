@@ -58,8 +58,8 @@ class Covariates:
     (tan of the off-axis angle); cos_off_axis = 1 / sqrt(1 + rho2); x_norm, y_norm: (u - cx) / fx,
     (v - cy) / fy; u_px, v_px: pixel column and row; cos_incidence, incidence_deg: the angle at
     which the ray meets the wall (plane fitted per stop); brightness_dn: mean IR brightness
-    (DN, NaN without IR images); ambient_ratio: ambient / pattern light (NaN without projector-off
-    frames); stop: the stop's index; time_s: the stop's middle, s after the first began;
+    (DN, NaN without IR images or where the IR saturated); ambient_ratio: ambient / pattern light (NaN
+    without projector-off frames, or saturated); stop: the stop's index; time_s: the stop's middle, s after the first began;
     projector_on; fb_px_m: focal length x baseline (px m); depth_unit_m. Per-pixel statistics
     pool a stop's frames, so time within a stop enters only through the per-frame series.
     """

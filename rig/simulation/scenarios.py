@@ -5,7 +5,9 @@ draws realistic parameters for it; the recording says nothing about it (the fake
 description is concealed) and the answer goes only to OUT.answer.json. `--effect NAME` hides a
 chosen one: any catalogue effect, a coarse depth unit (`coarse_depth_unit`, 1-4 mm), a pair of
 catalogue effects (`slant_range+noise_floor`) or an effect the model catalogue does not have
-(`beam_falloff`, `light_falloff`, `noisy_confidence`, `correlated_noise`, `scale_mixture`).
+(`beam_falloff`, `light_falloff`, `noisy_confidence`, `correlated_noise`, `scale_mixture`), frames
+smoothed over time (`temporal_filter`), or IR saturated near the wall under hidden ambient light
+(`ambient_saturated_ir`).
 
 The experiment is the paper's perpendicular one with the projector on (night-time, so any
 room light is the hidden `ambient` effect), 11 stops of 0.5-3.0 m, with a few projector-off
@@ -83,8 +85,12 @@ NOT_IN_CATALOGUE: dict[str, tuple[Callable[[np.random.Generator], dict[str, floa
 NOT_INDEPENDENT: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
     "temporal_filter": lambda r: {"alpha": r.uniform(0.3, 0.6)},
 }
+#: IR saturated near the wall (the fake camera's ir_gain, 3-5: the 10-bit IR clips at 1023 on the bright dots of the
+#: nearest stops, as real IR does at short range with the projector on) under a hidden effect the brightness
+#: covariates carry: the diagnosis must still name that effect, with the clipped pixels kept out of brightness
+SATURATED_IR: dict[str, str] = {"ambient_saturated_ir": "ambient"}
 #: every scenario the blind test runs
-ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT]
+ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT, *SATURATED_IR]
 
 
 @dataclass(frozen=True)
@@ -110,6 +116,8 @@ def expected(effect: str) -> Expected:
         return Expected((), NOT_IN_CATALOGUE[effect][1])
     if effect == COARSE_DEPTH_UNIT:
         return Expected(("quantization",))
+    if effect in SATURATED_IR:
+        return Expected((MODEL_EFFECT_FOR[SATURATED_IR[effect]],))
     if effect in PAIRS:
         return Expected(tuple(MODEL_EFFECT_FOR[e] for e in effect.split("+")))
     return Expected(() if effect == "none" else (MODEL_EFFECT_FOR[effect],))
@@ -137,6 +145,8 @@ class Scenario:
             return []
         if "+" in self.effect:
             return [(name, dict(self.params.get(name, {}))) for name in self.effect.split("+")]
+        if self.effect in SATURATED_IR:
+            return [(SATURATED_IR[self.effect], {k: v for k, v in self.params.items() if k != "ir_gain"})]
         return [(self.effect, dict(self.params))]
 
     def answer(self) -> dict[str, Any]:
@@ -170,6 +180,8 @@ def hidden_scenario(seed: int, effect: str | None = None, **kw: Any) -> Scenario
         params = {"depth_unit_mm": unit}
     elif effect in PAIRS:
         params = {name: _draw(name, rng) for name in effect.split("+")}
+    elif effect in SATURATED_IR:
+        params = {**_draw(SATURATED_IR[effect], rng), "ir_gain": round(float(rng.uniform(3.0, 5.0)), 3)}
     elif effect != "none":
         params = _draw(effect, rng)
     return Scenario(effect, params, seed, depth_unit_mm=unit, **kw)
@@ -186,7 +198,8 @@ def record_scenario(sc: Scenario, out: str | Path, *, progress=None) -> Path:
     height = round(sc.width * 480 / 848)
     cam = FakeCamera(world, width=sc.width, height=height, depth_scale_m=sc.depth_unit_mm / 1000, effects=effects,
                      seed=sc.seed, conceal=True, serial=f"SIM-{sc.seed:04d}", light="night",
-                     temporal_alpha=sc.params.get("alpha") if sc.effect in NOT_INDEPENDENT else None)
+                     temporal_alpha=sc.params.get("alpha") if sc.effect in NOT_INDEPENDENT else None,
+                     ir_gain=sc.params.get("ir_gain", 1.0) if sc.effect in SATURATED_IR else 1.0)
     stage = FakeStage(world, seed=sc.seed)
     plan = perpendicular(frames_per_stop=sc.frames, projector_on=True, ambient_frames=sc.ambient_frames)
     Runner(cam, stage, progress=progress, sleep=lambda s: setattr(world, "time_s", world.time_s + s)).run(plan, out)
