@@ -381,6 +381,7 @@ def _write_report(diag, out: Path, recording: str) -> tuple[list[Path], Path]:
     from ..reports.diagnosis_plots import write_plots
     from ..reports.run_info import run_info
 
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     work = out.parent / f".{out.name}.{os.getpid()}.writing"
     try:
@@ -392,6 +393,10 @@ def _write_report(diag, out: Path, recording: str) -> tuple[list[Path], Path]:
                 old.unlink()
         for p in made:
             os.replace(p, out / p.name)
+    except BaseException:
+        if created and not any(out.iterdir()):  # a folder this command made and never filled (a full disk)
+            out.rmdir()
+        raise
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return [out / p.name for p in plots], out / page.name
