@@ -37,6 +37,13 @@ def count(args: list[str], call: str) -> int:
         return sum(f"{call}(" in line for line in log.read_text().splitlines())
 
 
+def _complete(path: Path) -> bool:
+    from protocols.recording import Recording
+
+    with Recording(path) as rec:
+        return "ended_utc" in rec.attrs and not rec.skipped
+
+
 def trial(args: list[str], out: str, call: str, fault: str, n: int) -> tuple[str, str]:
     """(what the faulted command did, what the next command did)."""
     with tempfile.TemporaryDirectory() as d:
@@ -53,9 +60,9 @@ def trial(args: list[str], out: str, call: str, fault: str, n: int) -> tuple[str
         else:
             first = f"exit {p.returncode}, {len(lines)} lines" + (", traceback" if "Traceback" in p.stderr else "")
         left = sorted(x.name for x in cwd.iterdir())
-        again = [*args, "--resume"] if args is RUN and (cwd / out).exists() and p.returncode != 0 else args
-        if (cwd / out).exists() and p.returncode == 0:
-            return first, f"left {left}"
+        if left == [out] and _complete(cwd / out):  # the fault hit a line to stdout after the output was whole
+            return first, f"nothing to redo: {out} whole"
+        again = [*args, "--resume"] if args is RUN and (cwd / out).exists() else args
         q = subprocess.run([*RIG, *again], cwd=cwd, capture_output=True, text=True)
         after = sorted(x.name for x in cwd.iterdir())
         how = "--resume" if "--resume" in again else "again"
