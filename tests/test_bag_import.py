@@ -92,6 +92,11 @@ def test_the_real_d435_bag_imports_with_the_bag_s_own_metadata(tmp_path, capsys)
         np.testing.assert_allclose(stop.stats.variance_m2[valid], np.var(frames[:, valid] * 1e-3, axis=0, ddof=1),
                                    rtol=1e-9, atol=1e-15)
     assert any("auto-exposure on" in n and "exposure per frame 6452-6452 us" in n for n in notes), notes
+    from rig.reports.run_info import run_info  # what the diagnosis report's header shows
+
+    rows = {key: value for key, _label, value in run_info(out, "now", "test").rows}
+    assert (rows["camera_model"], rows["camera_serial"], rows["camera_firmware"]) == (
+        "Intel RealSense D435", "728612070259", "05.09.14.00")
     fit = fit_recording(out)
     assert any(n.startswith("one stop only") for n in fit.notes)
     assert 0 < fit.fit.lam < 6 and np.isfinite(fit.fit.se_lam)  # a number, resting on one scene's spread of ranges
