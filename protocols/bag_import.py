@@ -30,7 +30,7 @@ from drivers.folder.stops import MAX_RANGE_MISMATCH, center_counts, distance_fro
 from drivers.stage import NoStage
 
 from .bag_spans import parse_distances, parse_time_spans, stops_at_gaps, stops_in_time
-from .disk_space import is_disk_full
+from .disk_space import is_disk_full, is_storage_failure
 from .leftovers import remove_dead_leftovers
 from .folder_import import PROTOCOL, _check_paths_out, import_stopped
 from .plan import Capture, Configure, Move, Plan
@@ -99,7 +99,7 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
     except BaseException as e:
         tmp.unlink(missing_ok=True)
         shutil.rmtree(journal_dir(tmp), ignore_errors=True)
-        if isinstance(e, (OSError, RuntimeError)) and is_disk_full(e):  # h5py says a full disk as RuntimeError
+        if isinstance(e, (OSError, RuntimeError)) and (is_disk_full(e) or is_storage_failure(e)):  # h5py: RuntimeError
             raise import_stopped(src, e) from None
         raise
     return out

@@ -45,6 +45,14 @@ def is_disk_full(e: BaseException) -> bool:
     return "No space left" in text or "errno = 28" in text or "Disk quota exceeded" in text
 
 
+def is_storage_failure(e: BaseException) -> bool:
+    """An OSError (or h5py's error) from the storage itself: an I/O error, a file system gone read-only."""
+    if isinstance(e, OSError) and e.errno in (errno.EIO, errno.EROFS):
+        return True
+    text = str(e)
+    return "Input/output error" in text or "errno = 5," in text or "Read-only file system" in text
+
+
 def megabytes(n: int) -> str:
     return f"{max(1, round(n / 1e6))} MB"
 

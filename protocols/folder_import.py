@@ -28,7 +28,7 @@ from drivers.errors import FolderImportError
 from drivers.folder import FolderCamera, ImportSettings, StopSource, check_stops, find_stops, load_settings
 from drivers.stage import NoStage
 
-from .disk_space import is_disk_full
+from .disk_space import is_disk_full, is_storage_failure
 from .leftovers import remove_dead_leftovers
 from .plan import Capture, Configure, Move, Plan
 from .stop_journal import journal_dir
@@ -82,7 +82,7 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
     except BaseException as e:
         tmp.unlink(missing_ok=True)
         shutil.rmtree(journal_dir(tmp), ignore_errors=True)
-        if isinstance(e, (OSError, RuntimeError)) and is_disk_full(e):  # h5py says a full disk as RuntimeError
+        if isinstance(e, (OSError, RuntimeError)) and (is_disk_full(e) or is_storage_failure(e)):  # h5py: RuntimeError
             raise import_stopped(src, e) from None
         raise
     return out
@@ -118,7 +118,8 @@ def import_stopped(src: Path, e: BaseException) -> FolderImportError:
     free = next((p.split(" and ")[0] for p in parts if p.startswith("free about")), "")
     full = is_disk_full(e) or "disk full" in str(e)
     fix = f"; {free} and import again" if free else ("; free some space and import again" if full else "")
-    what = parts[0] if isinstance(e, RunError) else f"disk full writing its provenance ({type(e).__name__})"
+    what = parts[0] if isinstance(e, RunError) else \
+        f"{'disk full' if full else 'the disk failed'} writing its provenance ({type(e).__name__})"
     return FolderImportError(f"import of {src} stopped ({what}); nothing was written{fix}")
 
 

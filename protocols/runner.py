@@ -23,7 +23,7 @@ from drivers.image_regions import center_box
 from drivers.stage import Stage
 
 from .plan import Capture, Configure, Home, Move, Plan, Settle
-from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, megabytes, size_text, stop_bytes
+from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, is_storage_failure, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
 from .plan_check import RigLimits, disk_need_bytes, plan_problems, stop_recipes
 from .recording import FrameSeries, RecordingError
@@ -217,6 +217,9 @@ class Runner:
         except (DeviceError, RecordingError) as e:
             raise RunError(f"{e}; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
         except OSError as e:
+            if is_storage_failure(e):  # an I/O error, a read-only disk: what is saved, and how to go on
+                raise RunError(f"writing {path} failed ({e.strerror or e}); check the disk (dmesg); "
+                               + self._saved_message(path, recorded, skipped, len(labels), created)) from None
             if not is_disk_full(e):
                 raise
             saved = len(recorded) + len(skipped)

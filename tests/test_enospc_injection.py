@@ -120,3 +120,24 @@ def test_a_full_disk_while_diagnose_writes_its_report_is_one_line_and_leaves_no_
         p = _rig(["diagnose", "run.h5", "--out", "rep", "-q"], tmp_path, ("write", n))
         _one_line(p)
         assert sorted(x.name for x in tmp_path.iterdir()) == ["run.h5"], (n, list(tmp_path.iterdir()))
+
+
+def _rig_eio(args: list[str], cwd: Path, call: str, n: int) -> subprocess.CompletedProcess:
+    cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:error=EIO:when={n}", *RIG, *args]
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120)
+
+
+def test_an_io_error_is_one_line_naming_what_is_saved(tmp_path):
+    """EIO (a failing disk, a pulled USB drive) at the header, at a stop's file, and in an import's provenance."""
+    for n, saved in ((2, "nothing was recorded"), (5, "2 of 3 stops are saved in run.h5; re-run the same command with --resume")):
+        p = _rig_eio(RUN, tmp_path, "write", n)
+        lines = p.stderr.strip().splitlines()
+        assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr[-1500:]
+        assert lines[0].startswith("rig: error: writing run.h5 failed (Input/output error); check the disk") and saved in lines[0]
+        if (tmp_path / "run.h5").exists():
+            assert _rig([*RUN, "--resume"], tmp_path).returncode == 0
+            (tmp_path / "run.h5").unlink()
+    p = _rig_eio(IMPORT, tmp_path, "pwrite64", 1)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "nothing was written" in lines[0], p.stderr[-1500:]
+    assert list(tmp_path.iterdir()) == []

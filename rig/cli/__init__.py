@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from ..models import EffectFileError
 
-    from protocols.disk_space import is_disk_full
+    from protocols.disk_space import is_disk_full, is_storage_failure
 
     argv = sys.argv[1:] if argv is None else list(argv)
     previous = _terminate_like_interrupt()
@@ -89,11 +89,15 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except OSError as e:
-        if not is_disk_full(e):
-            raise
         where = f" writing {e.filename}" if getattr(e, "filename", None) else ""
-        print(f"rig: error: disk full{where}; free some space and run the command again", file=sys.stderr)
-        return 2
+        if is_disk_full(e):
+            print(f"rig: error: disk full{where}; free some space and run the command again", file=sys.stderr)
+            return 2
+        if is_storage_failure(e):
+            print(f"rig: error: the disk failed{where} ({e.strerror}); check the disk (dmesg) and run the command "
+                  "again", file=sys.stderr)
+            return 2
+        raise
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
