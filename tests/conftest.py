@@ -44,6 +44,8 @@ SLOW_FILES = {
     "test_tui.py", "test_tui_operator.py",  # the terminal UI
     "test_cli_flags.py", "test_cli_outputs.py", "test_cli_progress.py", "test_disk_full.py", "test_effects_guide.py",
     "test_fuzz_recordings.py", "test_readme.py", "test_undetermined.py",
+    "test_enospc_injection.py", "test_kill_leftovers.py",  # the real command under strace, dozens of times
+    "test_independence.py", "test_ir_saturation.py", "test_bag_import.py",  # real recordings, small trials
 }
 SLOW_TESTS = {
     "test_cli.py": {"test_console_script_is_installed_and_runs", "test_demo_small", "test_run_then_fit"},
