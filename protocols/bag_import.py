@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -30,12 +28,9 @@ from drivers.folder.stops import MAX_RANGE_MISMATCH, center_counts, distance_fro
 from drivers.stage import NoStage
 
 from .bag_spans import parse_distances, parse_time_spans, stops_at_gaps, stops_in_time
-from .disk_space import is_disk_full, is_storage_failure
-from .leftovers import remove_dead_leftovers
-from .folder_import import PROTOCOL, _check_paths_out, import_stopped
+from .folder_import import PROTOCOL, _check_paths_out, import_stopped, write_aside
 from .plan import Capture, Configure, Move, Plan
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
-from .stop_journal import journal_dir
 
 #: how far two bags' intrinsics may differ (px) and still be one camera at one resolution
 INTRINSICS_TOLERANCE_PX = 1e-3
@@ -86,23 +81,11 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
     report = progress or (lambda e: None)
     report(ProgressEvent("message", text=f"importing {sum(s.n_frames for s in stops)} frames in {len(stops)} "
                                          f"stop{'s' * (len(stops) != 1)} from {src} ({facts[0].extra['bag_format']})"))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_dead_leftovers(out)  # a killed import's temporary recording, its lock and stop folder
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.importing")
-    tmp.unlink(missing_ok=True)
-    try:
+    def fill(tmp: Path) -> None:
         _record(stops, values, src, tmp, progress)
         _provenance(tmp, src, facts, manifest, given, stops)
-        if out.exists():
-            raise FolderImportError(f"{out} appeared during the import; choose another output file")
-        tmp.rename(out)
-    except BaseException as e:
-        tmp.unlink(missing_ok=True)
-        shutil.rmtree(journal_dir(tmp), ignore_errors=True)
-        if isinstance(e, (OSError, RuntimeError)) and (is_disk_full(e) or is_storage_failure(e)):  # h5py: RuntimeError
-            raise import_stopped(src, e) from None
-        raise
-    return out
+
+    return write_aside(src, out, fill)
 
 
 def _agreed(facts: list[BagFacts]) -> dict[str, Any]:

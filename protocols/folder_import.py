@@ -19,7 +19,7 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 
@@ -69,13 +69,23 @@ def import_folder(src: str | Path, out: str | Path, overrides: dict[str, Any] | 
     report = progress or (lambda e: None)
     n_frames = sum(s.n_frames for s in stops)
     report(ProgressEvent("message", text=f"importing {n_frames} frames in {len(stops)} stops from {src}"))
+    def fill(tmp: Path) -> None:
+        _record(stops, settings, shape, src, tmp, progress)
+        write_provenance(tmp, src, manifest, overrides, stops)
+
+    return write_aside(src, out, fill)
+
+
+def write_aside(src: Path, out: Path, fill: Callable[[Path], None]) -> Path:
+    """Make the recording `out` by `fill(tmp)` on a temporary file beside it, renamed in when whole: a failed
+    import leaves no file (a killed one's leftovers go at the next import, protocols.leftovers); a full or failing
+    disk is one line."""
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_dead_leftovers(out)  # a killed import's temporary recording, its lock and stop folder
     tmp = out.with_name(f".{out.name}.{os.getpid()}.importing")
     tmp.unlink(missing_ok=True)
     try:
-        _record(stops, settings, shape, src, tmp, progress)
-        write_provenance(tmp, src, manifest, overrides, stops)
+        fill(tmp)
         if out.exists():
             raise FolderImportError(f"{out} appeared during the import; choose another output file")
         tmp.rename(out)

@@ -10,23 +10,12 @@ run, resume or import of that path removes those whose process is gone (never a 
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 from pathlib import Path
 
+from .run_lock import alive
 from .stop_journal import journal_dir
-
-
-def alive(pid: int) -> bool:
-    """A process with this PID exists on this host (one we may not signal counts as alive)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def dead_leftovers(path: Path) -> list[Path]:
