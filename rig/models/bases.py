@@ -27,6 +27,15 @@ class Base(BaseModel):
     def shot(self, p: dict[str, float], d: ModelData) -> np.ndarray:
         return p["k"] ** 2 * d.z0_m ** (2 * p["lambda"])
 
+    def shot_tangent(self, p: dict[str, float], d: ModelData, shot: np.ndarray, t: Any) -> np.ndarray | None:
+        """d shot / d k = 2 shot / k; d shot / d lambda = 2 ln(Z) shot."""
+        rows = []
+        if (i := t.row(self, "k")) is not None:
+            rows.append((i, 2.0 * shot / p["k"]))
+        if (i := t.row(self, "lambda")) is not None:
+            rows.append((i, 2.0 * np.log(d.z0_m) * shot))
+        return t.seeded(rows)
+
     def __add__(self, other: Any) -> Model:
         return Model.of(self) + other
 

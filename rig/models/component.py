@@ -70,6 +70,10 @@ class BaseModel(Component):
     def shot(self, p: Mapping[str, float], d: ModelData) -> np.ndarray:
         raise NotImplementedError
 
+    def shot_tangent(self, p: Mapping[str, float], d: ModelData, shot: np.ndarray, t: Any) -> np.ndarray | None:
+        """d(shot variance) / d(parameters) for the rows of `t` (`rig.models.tangents`)."""
+        raise NotImplementedError
+
 
 class Effect(Component):
     """A physical effect the base model leaves out.
@@ -96,6 +100,11 @@ class Effect(Component):
 
     def apply(self, pred: Prediction, p: Any, d: ModelData) -> None:
         """Change `pred` (`p`: this effect's parameters, a named tuple made by `own`)."""
+        raise NotImplementedError
+
+    def apply_tangent(self, pred: Prediction, p: Any, d: ModelData, t: Any) -> None:
+        """`apply`, carrying the derivatives `t` (`rig.models.tangents.Tangents`) through it by the chain rule.
+        An effect without one (a user's) is fitted with central differences of the whole likelihood instead."""
         raise NotImplementedError
 
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
@@ -142,7 +151,7 @@ class ComposedModel(Protocol):
 
     def free(self) -> list[tuple[str, Param]]: ...
 
-    def predict(self, values: Mapping[str, float], d: ModelData) -> Prediction: ...
+    def predict(self, values: Mapping[str, float], d: ModelData, tangents: Any = None) -> Prediction: ...
 
     def loglik(self, values: Mapping[str, float], d: ModelData) -> float: ...
 

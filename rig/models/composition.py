@@ -25,6 +25,7 @@ from .likelihood import model_loglik
 from .optimise import fit_model
 from .parameters import Param
 from .prediction import EffectStage, Prediction
+from .tangents import Tangents, plus, scale
 
 if TYPE_CHECKING:
     from .result import ModelFit
@@ -74,21 +75,36 @@ class Model:
     def free(self) -> list[tuple[str, Param]]:
         return [(n, p) for n, p in self.parameters() if p.vary]
 
-    def predict(self, values: Mapping[str, float], d: ModelData) -> Prediction:
-        """The prediction with parameter `values` (by qualified name); each effect gets its own (`Effect.own`)."""
+    def predict(self, values: Mapping[str, float], d: ModelData, tangents: Tangents | None = None) -> Prediction:
+        """The prediction with parameter `values` (by qualified name); each effect gets its own (`Effect.own`). Given
+        `tangents` (`rig.models.tangents`), their derivatives are carried through every stage as well."""
+        t = tangents
         own = [e.own(values) for e in self.effects]
         pred = Prediction(self.base.shot(values, d), np.ones(len(d)), np.zeros(len(d)))
+        if t is not None:
+            t.shot = self.base.shot_tangent(values, d, pred.shot_m2, t)
+
+        def stage(e: Effect, p: Any) -> None:
+            if t is None:
+                e.apply(pred, p, d)
+            else:
+                e.apply_tangent(pred, p, d, t)
+
         for e, p in zip(self.effects, own):
             if e.stage < EffectStage.DISPARITY:
-                e.apply(pred, p, d)
+                stage(e, p)
         pred.var_m2 = pred.shot_m2 * pred.illum * (1.0 + pred.image_terms)
+        if t is not None:  # var = shot illum (1 + image)
+            t.var = plus(scale(t.shot, pred.illum * (1.0 + pred.image_terms)),
+                         scale(t.illum, pred.shot_m2 * (1.0 + pred.image_terms)),
+                         scale(t.image, pred.shot_m2 * pred.illum))
         for e, p in zip(self.effects, own):
             if EffectStage.DISPARITY <= e.stage <= EffectStage.CENSOR:
-                e.apply(pred, p, d)
-        range_transform(pred, d)
+                stage(e, p)
+        range_transform(pred, d, t)
         for e, p in zip(self.effects, own):
             if e.stage > EffectStage.CENSOR:
-                e.apply(pred, p, d)
+                stage(e, p)
         return pred
 
     def loglik(self, values: Mapping[str, float], d: ModelData) -> float:

@@ -21,6 +21,7 @@ from .file_physics import MAX_DEPTH_UNITS, truncated_normal_moments
 from .parameters import Param
 from .prediction import EffectStage
 from .rounding import expected_sample_variance
+from .tangents import plus, scale
 
 __all__ = ["EFFECTS", "Effect", "register"]
 
@@ -45,6 +46,11 @@ class NoiseFloor(Effect):
     def apply(self, pred, p, d):
         pred.add(d.disparity_to_range(p.sigma_px ** 2))
 
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)
+        if (i := t.row(self, "sigma_px")) is not None:
+            t.var = plus(t.var, t.seeded([(i, d.disparity_to_range(2.0 * p.sigma_px))]))
+
 
 @register
 class ReadNoise(Effect):
@@ -66,6 +72,12 @@ class ReadNoise(Effect):
     def apply(self, pred, p, d):
         term = p.ratio_at_1m * d.z0_m**2 * pred.illum
         pred.image_terms = pred.image_terms + np.where(d.projector_on, term, 0.0)
+
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)
+        z2_on = np.where(d.projector_on, d.z0_m**2, 0.0)
+        own = [(i, z2_on * pred.illum)] if (i := t.row(self, "ratio_at_1m")) is not None else []
+        t.image = plus(t.image, scale(t.illum, p.ratio_at_1m * z2_on), t.seeded(own))
 
 
 @register
@@ -91,6 +103,9 @@ class Ambient(Effect):
         r = np.where(np.isfinite(d.ambient_ratio) & d.projector_on, d.ambient_ratio, 0.0)
         pred.image_terms = pred.image_terms + r
 
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)  # a measured term: its derivative is zero
+
 
 @register
 class SlantRange(Effect):
@@ -111,6 +126,10 @@ class SlantRange(Effect):
     def apply(self, pred, p, d):
         pred.illum = pred.illum * np.where(d.projector_on, 1.0 + d.rho2, 1.0)
 
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)
+        t.illum = scale(t.illum, np.where(d.projector_on, 1.0 + d.rho2, 1.0))
+
 
 @register
 class Incidence(Effect):
@@ -129,6 +148,10 @@ class Incidence(Effect):
 
     def apply(self, pred, p, d):
         pred.illum = pred.illum * np.where(d.projector_on, 1.0 / np.clip(d.cos_inc, 0.05, 1.0), 1.0)
+
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)
+        t.illum = scale(t.illum, np.where(d.projector_on, 1.0 / np.clip(d.cos_inc, 0.05, 1.0), 1.0))
 
 
 @register
@@ -152,43 +175,82 @@ class Outliers(Effect):
     signature = "the errors are heavy-tailed: pixel variances scatter more than a normal distribution allows (kurtosis above 3)"
     explanation = "outliers: occasional mismatches far from the true disparity (the paper's kurtosis of 4-8)"
 
-    def apply(self, pred, p, d):
+    def apply(self, pred, p, d, t=None):
         f, w = p.fraction, p.width_px
         z = np.asarray(d.z0_m, dtype=np.float64)
         var0 = np.broadcast_to(np.asarray(pred.var_m2, dtype=np.float64), z.shape)
         k40 = np.broadcast_to(np.asarray(0.0 if pred.k4_m4 is None else pred.k4_m4, dtype=np.float64), z.shape)
+        partials = np.empty((9, z.size) if t is not None else (9, 1))
         var, k4, kept_fill = _outlier_mixture(z, var0, k40, float(f), float(w), float(d.fb_px_m),
-                                              float(MAX_DEPTH_UNITS * d.depth_unit_m))
-        pred.fill = (pred.fill if pred.fill is not None else 1.0) * kept_fill
+                                              float(MAX_DEPTH_UNITS * d.depth_unit_m), t is not None, partials)
+        fill_before = pred.fill if pred.fill is not None else 1.0
+        pred.fill = fill_before * kept_fill
         pred.var_m2 = var
         pred.k4_m4 = k4
+        if t is None:
+            return
+        # partials: d (var, k4, kept) / d var0, d f, d w; d k4 / d k40 (`_outlier_mixture`)
+        dv_v, dv_f, dv_w, dk_v, dk_f, dk_w, dkept_f, dkept_w, dk_k4 = partials
+        i_f, i_w = t.row(self, "fraction"), t.row(self, "width_px")
+        own_var = t.seeded([(i, x) for i, x in ((i_f, dv_f), (i_w, dv_w)) if i is not None])
+        own_k4 = t.seeded([(i, x) for i, x in ((i_f, dk_f), (i_w, dk_w)) if i is not None])
+        own_kept = t.seeded([(i, x) for i, x in ((i_f, dkept_f), (i_w, dkept_w)) if i is not None])
+        t.fill = plus(scale(t.fill, kept_fill), scale(own_kept, fill_before))
+        t.k4 = plus(scale(t.var, dk_v), scale(t.k4, dk_k4), own_k4)
+        t.var = plus(scale(t.var, dv_v), own_var)
+
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d, t)
 
 
 @njit(cache=True, nogil=True)
-def _outlier_mixture(z, var0, k40, f_all, w, fb, deepest_m):
-    """Outliers.apply's formulas (its docstring), pixel by pixel in one pass: (variance, fourth cumulant, share
-    of samples kept). Mismatches beyond the deepest range the depth format holds (65535 units) read as no data."""
+def _outlier_row(zi, v0, k40, f_all, w, fb, deepest_m):  # pragma: no cover - compiled
+    """Outliers.apply's formulas (its docstring) for one pixel: (variance, fourth cumulant, share of samples
+    kept). Mismatches beyond the deepest range the depth format holds (65535 units) read as no data."""
+    d0 = fb / zi
+    u_lo = min(max(-w, fb / deepest_m - d0), w - 1e-9)
+    span = w - u_lo
+    mean_o = fb * math.log((d0 + w) / (d0 + u_lo)) / span
+    var_o = fb * fb * (1.0 / (d0 + u_lo) - 1.0 / (d0 + w)) / span - mean_o * mean_o
+    kept = span / (2.0 * w)
+    kept_all = 1.0 - f_all + f_all * kept
+    f = f_all * kept / kept_all
+    w_eff = span / 2.0
+    m = (1.0 - f) * zi + f * mean_o
+    var = (1.0 - f) * (v0 + (zi - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
+    a2 = (zi * zi / fb) ** 2 * w_eff * w_eff  # disparity_to_range(w_eff^2): (Z^2 / (f b))^2 var_d
+    m4_lin = (1.0 - f) * (3.0 * v0 * v0 + k40) + f * a2 * a2 / 5.0
+    var_lin = (1.0 - f) * v0 + f * a2 / 3.0
+    return var, m4_lin * (var / var_lin) ** 2 - 3.0 * var * var, kept_all
+
+
+@njit(cache=True, nogil=True)
+def _outlier_mixture(z, var0, k40, f_all, w, fb, deepest_m, with_partials, partials):  # pragma: no cover - compiled
+    """`_outlier_row` pixel by pixel in one pass: (variance, fourth cumulant, share kept). With `with_partials`,
+    fills `partials` (9 x pixels): d (var, k4, kept) / d var0, d fraction, d width by central differences of the
+    row's closed form, and d k4 / d k40 = (1 - f) (var / var_lin)^2 exactly (the cumulant enters linearly)."""
     n = z.shape[0]
     var_out, k4_out, kept_out = np.empty(n), np.empty(n), np.empty(n)
     for i in range(n):
-        zi = z[i]
-        d0 = fb / zi
-        u_lo = min(max(-w, fb / deepest_m - d0), w - 1e-9)
-        span = w - u_lo
-        mean_o = fb * math.log((d0 + w) / (d0 + u_lo)) / span
-        var_o = fb * fb * (1.0 / (d0 + u_lo) - 1.0 / (d0 + w)) / span - mean_o * mean_o
-        kept = span / (2.0 * w)
-        kept_out[i] = 1.0 - f_all + f_all * kept
-        f = f_all * kept / kept_out[i]
-        w_eff = span / 2.0
-        m = (1.0 - f) * zi + f * mean_o
-        v0 = var0[i]
-        var = (1.0 - f) * (v0 + (zi - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
-        a2 = (zi * zi / fb) ** 2 * w_eff * w_eff  # disparity_to_range(w_eff^2): (Z^2 / (f b))^2 var_d
-        m4_lin = (1.0 - f) * (3.0 * v0 * v0 + k40[i]) + f * a2 * a2 / 5.0
-        var_lin = (1.0 - f) * v0 + f * a2 / 3.0
-        var_out[i] = var
-        k4_out[i] = m4_lin * (var / var_lin) ** 2 - 3.0 * var * var
+        zi, v0, k4i = z[i], var0[i], k40[i]
+        var, k4, kept = _outlier_row(zi, v0, k4i, f_all, w, fb, deepest_m)
+        var_out[i], k4_out[i], kept_out[i] = var, k4, kept
+        if not with_partials:
+            continue
+        hv = 1e-6 * v0
+        vp, kp, _ = _outlier_row(zi, v0 + hv, k4i, f_all, w, fb, deepest_m)
+        vm, km, _ = _outlier_row(zi, v0 - hv, k4i, f_all, w, fb, deepest_m)
+        partials[0, i], partials[3, i] = (vp - vm) / (2 * hv), (kp - km) / (2 * hv)
+        hf = 1e-7
+        vp, kp, ep = _outlier_row(zi, v0, k4i, f_all + hf, w, fb, deepest_m)
+        vm, km, em = _outlier_row(zi, v0, k4i, f_all - hf, w, fb, deepest_m)
+        partials[1, i], partials[4, i], partials[6, i] = (vp - vm) / (2 * hf), (kp - km) / (2 * hf), (ep - em) / (2 * hf)
+        hw = 1e-6 * w
+        vp, kp, ep = _outlier_row(zi, v0, k4i, f_all, w + hw, fb, deepest_m)
+        vm, km, em = _outlier_row(zi, v0, k4i, f_all, w - hw, fb, deepest_m)
+        partials[2, i], partials[5, i], partials[7, i] = (vp - vm) / (2 * hw), (kp - km) / (2 * hw), (ep - em) / (2 * hw)
+        v1, k1, _ = _outlier_row(zi, v0, k4i + 1.0, f_all, w, fb, deepest_m)
+        partials[8, i] = k1 - k4
     return var_out, k4_out, kept_out
 
 
@@ -212,7 +274,7 @@ class Quantization(Effect):
     explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "
                    "adding q^2/12, or less for a noise below the unit")
 
-    def apply(self, pred, p, d):
+    def apply(self, pred, p, d, t=None):
         q = d.depth_unit_m
         step2 = d.disparity_to_range(p.step_px ** 2)
         var_in = pred.var_m2 + step2 / 12
@@ -221,6 +283,21 @@ class Quantization(Effect):
         k4_rounding = (mu4_u - 3 * var_u**2) * q**4 - (step2**2) / 120
         pred.var_m2 = var_u * q**2
         pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding
+        if t is None:
+            return
+        # d/ds of the rounded moments (a table and its blend, `rig.models.rounding`): central differences of each
+        # row's own value; ds = d var_in / (2 s q^2); the step is fixed (no parameter of this effect is fitted)
+        h = 1e-6 * s
+        vp, mp = expected_sample_variance(s + h, d.grid_offset, d.n)
+        vm, mm = expected_sample_variance(s - h, d.grid_offset, d.n)
+        ds_dvar = 1.0 / (2.0 * s * q * q)
+        dv = (vp - vm) / (2 * h) * q**2 * ds_dvar
+        dk = ((mp - mm) - 3 * (vp**2 - vm**2)) / (2 * h) * q**4 * ds_dvar
+        t.k4 = plus(t.k4, scale(t.var, dk))
+        t.var = scale(t.var, dv)
+
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d, t)
 
 
 @register
@@ -239,6 +316,9 @@ class Drift(Effect):
     def apply(self, pred, p, d):
         pred.add(d.drift_var_m2)
         pred.common_inv2 = pred.common_inv2 + d.drift_var_m2 / d.z_m**4
+
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)  # a measured wander: its derivative is zero
 
 
 @register
@@ -269,6 +349,26 @@ class Censoring(Effect):
         pred.k4_m4 = var**2 * (m4 - 3 * m2**2) + k4_old * m2**2
         pred.fill = kept
         pred.censor = (c, var)  # the cut and the variance before it, for the exact range transform near the format's end
+
+    def apply_tangent(self, pred, p, d, t):
+        var, dvar, dk4_old = pred.var_m2, t.var, t.k4
+        k4_old = pred.k4_m4 if pred.k4_m4 is not None else 0.0
+        self.apply(pred, p, d)
+        c, _ = pred.censor
+        kept, m2, m4 = truncated_normal_moments(c)
+        # c = T / sigma_d, sigma_d ~ sqrt(var): dc = c (dT / T - dvar / (2 var)); with K = 2 Phi(c) - 1 and
+        # phi the normal density, dK/dc = 2 phi, dm2/dc = -2 phi ((1 - c^2) K - 2 c phi) / K^2,
+        # dm4/dc = -2 phi ((3 - c^4) K - 2 (c^3 + 3 c) phi) / K^2 (`truncated_normal_moments`)
+        phi = np.exp(-0.5 * c * c) / math.sqrt(2 * math.pi)
+        dm2 = -2 * phi * ((1 - c * c) * kept - 2 * c * phi) / kept**2
+        dm4 = -2 * phi * ((3 - c**4) * kept - 2 * (c**3 + 3 * c) * phi) / kept**2
+        i = t.row(self, "threshold_px")
+        dc = plus(scale(dvar, -0.5 * c / var), t.seeded([(i, c / p.threshold_px)] if i is not None else []))
+        t.var = plus(scale(dvar, m2), scale(dc, var * dm2))
+        t.k4 = plus(scale(dvar, 2 * var * (m4 - 3 * m2**2)), scale(dc, var**2 * (dm4 - 6 * m2 * dm2) + 2 * k4_old * m2 * dm2),
+                    scale(dk4_old, m2**2))
+        t.fill = scale(dc, 2 * phi)
+        t.censor = (dc, dvar)
 
 
 def __getattr__(name: str) -> Effect:

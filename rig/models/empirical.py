@@ -36,7 +36,10 @@ from .component import Component, Effect
 from .data import ModelData
 from .likelihood import pixel_weights
 from .parameters import Param
+from .pchip import smooth as _smooth
+from .pchip import smooth_jacobian
 from .prediction import EffectStage, Prediction
+from .tangents import plus, scale
 
 #: the covariates a sigma shape can follow, with their units and how each is read from the data
 COVARIATES: dict[str, tuple[str, Callable[[ModelData], np.ndarray]]] = {
@@ -62,49 +65,6 @@ def empirical(covariate: str) -> Effect:
     if covariate not in makers:
         raise ValueError(f"empirical({covariate}): the covariate must be one of {', '.join(SHAPES)}")
     return makers[covariate]()
-
-
-def _smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """A shape-preserving cubic through (knots, values), flat beyond the ends: scipy's PCHIP (the same slopes,
-    Fritsch-Butland at the interior knots and its three-point rule at the ends), evaluated directly because a
-    fit evaluates it thousands of times on the same few knots."""
-    x = np.clip(x, knots[0], knots[-1])
-    if len(knots) < 3:
-        return np.interp(x, knots, values)
-    slopes = _pchip_slopes(np.asarray(knots, dtype=float), np.asarray(values, dtype=float))
-    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
-    h = np.diff(knots)[i]
-    t = (x - knots[i]) / h
-    t2 = t * t
-    t3 = t2 * t
-    return ((2 * t3 - 3 * t2 + 1) * values[i] + (t3 - 2 * t2 + t) * h * slopes[i]
-            + (3 * t2 - 2 * t3) * values[i + 1] + (t3 - t2) * h * slopes[i + 1])
-
-
-def _pchip_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The slopes at the knots of scipy's PchipInterpolator (scipy.interpolate._cubic, _find_derivatives)."""
-    h = np.diff(x)
-    m = np.diff(y) / h
-    d = np.zeros_like(y)
-    sign = np.sign(m)
-    flat = (sign[1:] != sign[:-1]) | (m[1:] == 0) | (m[:-1] == 0)
-    w1, w2 = 2 * h[1:] + h[:-1], h[1:] + 2 * h[:-1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        harmonic = (w1 / m[:-1] + w2 / m[1:]) / (w1 + w2)
-        d[1:-1] = np.where(flat, 0.0, 1.0 / harmonic)
-    d[0] = _pchip_end(h[0], h[1], m[0], m[1])
-    d[-1] = _pchip_end(h[-1], h[-2], m[-1], m[-2])
-    return d
-
-
-def _pchip_end(h0: float, h1: float, m0: float, m1: float) -> float:
-    """scipy's one-sided three-point slope at an end, kept shape-preserving."""
-    d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
-    if np.sign(d) != np.sign(m0):
-        return 0.0
-    if np.sign(m0) != np.sign(m1) and abs(d) > abs(3 * m0):
-        return 3 * m0
-    return d
 
 
 def _spaced_knots(c: np.ndarray, n: int) -> np.ndarray:
@@ -165,6 +125,22 @@ class EmpiricalSigma(Effect):
     def apply(self, pred, p, d):
         pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(self.read(d), p))
 
+    def apply_tangent(self, pred, p, d, t):
+        # var *= exp(2 g): d var = exp(2 g) d var + 2 var exp(2 g) dg, dg / d g_i from the cubic (`pchip`)
+        knots = self.knots if self.knots is not None else np.linspace(0, 1, len(self.params) + 1)
+        g_at = np.array([0.0, *self.own(p)])[: len(knots)]
+        x = self._axis(self.read(d))
+        ok = np.isfinite(x)
+        g, jac = smooth_jacobian(self._axis(knots), g_at, np.nan_to_num(x))
+        mult = np.exp(2.0 * np.where(ok, g, 0.0))
+        pred.var_m2 = pred.var_m2 * mult
+        own = [(i, 2.0 * pred.var_m2 * np.where(ok, jac[j + 1], 0.0)) for j, (i, _) in enumerate(self._rows(t))
+               if i is not None]
+        t.var = plus(scale(t.var, mult), t.seeded(own))
+
+    def _rows(self, t) -> list[tuple[int | None, str]]:
+        return [(t.row(self, q.name), q.name) for q in self.params]
+
 
 class EmpiricalPosition(Effect):
     """An empirical sigma multiplier over the image: a quadratic surface in the normalised coordinates."""
@@ -188,6 +164,14 @@ class EmpiricalPosition(Effect):
     def apply(self, pred, p, d):
         pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(d.x_norm, d.y_norm, p))
 
+    def apply_tangent(self, pred, p, d, t):
+        mult = np.exp(2.0 * self.log_multiplier(d.x_norm, d.y_norm, p))
+        pred.var_m2 = pred.var_m2 * mult
+        x, y = d.x_norm, d.y_norm
+        terms = {"a_x": x, "a_y": y, "a_xx": x * x, "a_xy": x * y, "a_yy": y * y}
+        own = [(i, 2.0 * pred.var_m2 * terms[name]) for i, name in t.own_rows(self)]
+        t.var = plus(scale(t.var, mult), t.seeded(own))
+
 
 class _RangeShape(Effect):
     """A smooth curve over ln Z through RANGE_KNOTS knots evenly spaced over the data's ranges (PCHIP)."""
@@ -205,6 +189,14 @@ class _RangeShape(Effect):
         knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
         return _smooth(knots, np.array(self.own(p))[: len(knots)], lz)
 
+    def curve_tangent(self, z_m: np.ndarray, p: Any, t: Any) -> tuple[np.ndarray, np.ndarray | None]:
+        """The curve and its derivative with respect to the parameters `t` differentiates, (m, rows) or None."""
+        lz = np.log(np.asarray(z_m, dtype=float))
+        knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
+        g, jac = smooth_jacobian(knots, np.array(self.own(p))[: len(knots)], lz)
+        index = {q.name: j for j, q in enumerate(self.params)}
+        return g, t.seeded([(i, jac[index[name]]) for i, name in t.own_rows(self) if index[name] < len(knots)])
+
 
 class EmpiricalTails(_RangeShape):
     """An empirical excess kurtosis over range, added to the model's (sigma unchanged)."""
@@ -221,6 +213,13 @@ class EmpiricalTails(_RangeShape):
     def apply(self, pred, p, d):
         k4 = self.excess(d.z0_m, p) * pred.var_m2**2
         pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4
+
+    def apply_tangent(self, pred, p, d, t):
+        curve, dcurve = self.curve_tangent(d.z0_m, p, t)
+        excess = np.maximum(curve, -1.5)
+        var = pred.var_m2
+        self.apply(pred, p, d)
+        t.k4 = plus(t.k4, scale(t.var, 2.0 * excess * var), scale(dcurve, np.where(curve > -1.5, var**2, 0.0)))
 
 
 class _MeasuredRangeGain(Effect):
@@ -286,6 +285,9 @@ class EmpiricalFrameMean(_MeasuredRangeGain):
     def apply(self, pred, p, d):
         pred.frame_mean_gain = self.gain(d.z_m)
 
+    def apply_tangent(self, pred, p, d, t):
+        self.apply(pred, p, d)  # measured, and outside the likelihood: nothing to differentiate
+
 
 class EmpiricalFill(_RangeShape):
     """Empirical sample loss: the fill rate times a kept share expit(g(ln Z)), fitted (the fill rate by stop
@@ -305,6 +307,13 @@ class EmpiricalFill(_RangeShape):
     def apply(self, pred, p, d):
         fill = pred.fill if pred.fill is not None else np.ones(len(d))
         pred.fill = fill * self.gain(d.z0_m, p)
+
+    def apply_tangent(self, pred, p, d, t):
+        fill = pred.fill if pred.fill is not None else 1.0
+        curve, dcurve = self.curve_tangent(d.z0_m, p, t)
+        gain = expit(curve)
+        pred.fill = fill * gain
+        t.fill = plus(scale(t.fill, gain), scale(dcurve, fill * gain * (1.0 - gain)))
 
 
 def is_empirical(e: Component) -> bool:

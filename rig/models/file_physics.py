@@ -18,6 +18,7 @@ from scipy.special import ndtr
 
 from .data import ModelData
 from .prediction import Prediction
+from .tangents import Tangents, plus, scale
 
 #: the largest value a uint16 depth image holds; 0 means no data
 MAX_DEPTH_UNITS = 65535
@@ -29,34 +30,127 @@ NEAR_LIMIT_SIGMA = 6.0
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(32)
 
 
-def range_transform(pred: Prediction, d: ModelData) -> None:
+def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -> None:
     """The format's end and the curvature of Z = f b / d: closed-form corrections far from the end,
-    exact moments by quadrature near it (see the module docstring); one compiled pass (`_transform`)."""
+    exact moments by quadrature near it (see the module docstring); one compiled pass (`_transform`).
+    Given tangents (`rig.models.tangents`), carries them through: analytic far from the end, where the
+    correction is a formula; near it, by central differences of each row's own quadrature."""
     var_lin = np.ascontiguousarray(pred.var_m2, dtype=float)
     n = var_lin.size
     base_var = var_lin if pred.censor is None else np.ascontiguousarray(pred.censor[1], dtype=float)
     k4_in = np.zeros(1) if pred.k4_m4 is None else np.ascontiguousarray(np.broadcast_to(pred.k4_m4, var_lin.shape), dtype=float)
     cut = np.zeros(1) if pred.censor is None else np.ascontiguousarray(np.broadcast_to(pred.censor[0], var_lin.shape), dtype=float)
     var_out, k4_out, fill = np.empty(n), np.empty(n), np.empty(n)
+    partials = np.empty((n, 9) if t is not None else (1, 9))
     near = _transform(var_lin, base_var, k4_in, pred.k4_m4 is not None, cut, pred.censor is not None,
                       np.ascontiguousarray(d.z0_m, dtype=float), float(d.fb_px_m), MAX_DEPTH_UNITS * d.depth_unit_m,
-                      NEAR_LIMIT_SIGMA, _NODES, _WEIGHTS, var_out, k4_out, fill)
+                      NEAR_LIMIT_SIGMA, _NODES, _WEIGHTS, var_out, k4_out, fill, t is not None, partials)
+    fill_before = pred.fill
     pred.var_m2 = var_out
     pred.k4_m4 = k4_out
     if near:
         pred.fill = (pred.fill if pred.fill is not None else 1.0) * fill
+    if t is None:
+        return
+    # partials: d var / d (var_lin, base, cut), d k4 / d (var_lin, base, cut), d fill / d (base, cut), d k4 / d k4_in
+    # (1 far from the end; 0 near it, where the quadrature does not use the cumulant the row came with)
+    dv_lin, dv_base, dv_cut, dk_lin, dk_base, dk_cut, df_base, df_cut, dk_k4 = partials.T
+    d_base = t.var if pred.censor is None else t.censor[1]
+    d_cut = None if pred.censor is None else t.censor[0]
+    new_var = plus(scale(t.var, dv_lin), scale(d_base, dv_base), scale(d_cut, dv_cut))
+    new_k4 = plus(scale(t.k4, dk_k4) if near else t.k4, scale(t.var, dk_lin), scale(d_base, dk_base), scale(d_cut, dk_cut))
+    if near:
+        t.fill = plus(scale(t.fill, fill), scale(plus(scale(d_base, df_base), scale(d_cut, df_cut)),
+                                                 1.0 if fill_before is None else fill_before))
+    t.var, t.k4 = new_var, new_k4
 
 
 @njit(cache=True, nogil=True)
-def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, near_sigma, nodes, weights,
-               var_out, k4_out, fill):  # pragma: no cover - compiled
-    """Per pixel: far from the end (the disparity error a > -near_sigma of its own standard deviations from it),
-    `curvature`'s closed form; near it, Gauss-Legendre quadrature of Z = f b / (d0 + sigma_d x) over the normal x
-    on [max(a, -c), min(c, 8)] (c the censoring cut, 8 without). Returns whether any pixel was near."""
-    any_near = False
+def _near(z, base_var, c, censored, fb, z_max, nodes, weights, w_at, z_at, dw_at, dz_at, derivatives):  # pragma: no cover - compiled
+    """(variance, fourth cumulant, fill) of one row near the format's end: Gauss-Legendre quadrature of
+    Z = f b / (d0 + sigma_d x) over the normal x on [max(a, -c), min(c, 8)] (c the censoring cut, 8 without),
+    a = (f b / z_max - d0) / sigma_d; with `derivatives`, also d (variance, cumulant, fill) / d base_var and / d c.
+
+    The derivatives follow the quadrature itself (the moments of the nodes, with the nodes moving with the ends
+    of the interval): for a direction D that moves sigma_d and the ends lo, hi, D x_j = D mid + node_j D half,
+    D w_j = w_j (D half / half - x_j D x_j), D Z_j = -Z_j^2 (x_j D sigma_d + sigma_d D x_j) / (f b); then the
+    mass, mean and central sums follow by the product rule. Directions: base_var (D sigma_d = sigma_d / (2 base),
+    D lo = -(a / sigma_d) D sigma_d where the format's end is the lower limit) and c (D lo = -1 where the cut is,
+    D hi = 1 below 8; the fill's divisor 2 Phi(c) - 1 grows by 2 phi(c))."""
     inv_root_2pi = 1.0 / math.sqrt(2.0 * math.pi)
-    w_at = np.empty(nodes.size)  # a near pixel's quadrature weights and ranges, made once for both passes
+    sigma_d = math.sqrt(base_var) * fb / (z * z)
+    a = (fb / z_max - fb / z) / sigma_d
+    if not censored:
+        c = 8.0
+    lo, hi = max(a, -c), min(c, 8.0)
+    kept_before = math.erf(c / math.sqrt(2.0)) if censored else 1.0  # 2 Phi(c) - 1
+    half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
+    d0 = fb / z
+    out = np.zeros(9)
+    n_dir = 2 if derivatives else 0
+    # per direction: (D sigma_d, D lo, D hi)
+    dsig = (0.5 * sigma_d / base_var, 0.0)
+    dlo = ((-a / sigma_d) * dsig[0] if a > -c else 0.0, -1.0 if -c >= a and censored else 0.0)
+    dhi = (0.0, 1.0 if c < 8.0 and censored else 0.0)
+    mass = total = 0.0
+    dmass = np.zeros(2)
+    dtotal = np.zeros(2)
+    for j in range(nodes.size):
+        x = mid + half * nodes[j]
+        w = half * weights[j] * math.exp(-0.5 * x * x) * inv_root_2pi
+        den = max(d0 + sigma_d * x, 1e-12)
+        zj = fb / den
+        w_at[j], z_at[j] = w, zj
+        mass += w
+        total += w * zj
+        for k in range(n_dir):
+            dhalf, dmid = 0.5 * (dhi[k] - dlo[k]), 0.5 * (dhi[k] + dlo[k])
+            dx = dmid + nodes[j] * dhalf
+            dw = w * (dhalf / half - x * dx)
+            dz = -zj * zj * (x * dsig[k] + sigma_d * dx) / fb
+            dw_at[k, j], dz_at[k, j] = dw, dz
+            dmass[k] += dw
+            dtotal[k] += dw * zj + w * dz
+    mass = max(mass, 1e-300)
+    mean = total / mass
+    m2 = m4 = 0.0
+    dm2 = np.zeros(2)
+    dm4 = np.zeros(2)
+    dmean = np.zeros(2)
+    for k in range(n_dir):
+        dmean[k] = (dtotal[k] - mean * dmass[k]) / mass
+    for j in range(nodes.size):
+        dev = z_at[j] - mean
+        dev2 = dev * dev
+        m2 += w_at[j] * dev2
+        m4 += w_at[j] * dev2 * dev2
+        for k in range(n_dir):
+            ddev = dz_at[k, j] - dmean[k]
+            dm2[k] += dw_at[k, j] * dev2 + 2.0 * w_at[j] * dev * ddev
+            dm4[k] += dw_at[k, j] * dev2 * dev2 + 4.0 * w_at[j] * dev2 * dev * ddev
+    var_near = m2 / mass
+    out[0], out[1], out[2] = var_near, m4 / mass - 3.0 * var_near * var_near, mass / kept_before
+    for k in range(n_dir):
+        dvar = (dm2[k] - var_near * dmass[k]) / mass
+        out[3 + 3 * k] = dvar
+        out[4 + 3 * k] = (dm4[k] - m4 / mass * dmass[k]) / mass - 6.0 * var_near * dvar
+        out[5 + 3 * k] = dmass[k] / kept_before
+    if derivatives and censored:
+        out[8] -= mass / kept_before**2 * 2.0 * math.exp(-0.5 * c * c) * inv_root_2pi
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, near_sigma, nodes, weights,
+               var_out, k4_out, fill, with_partials, partials):  # pragma: no cover - compiled
+    """Per pixel: far from the end (the disparity error a > -near_sigma of its own standard deviations from it),
+    `curvature`'s closed form; near it, `_near`'s quadrature. Returns whether any pixel was near. With
+    `with_partials`, fills `partials` (rows x 9, see `range_transform`)."""
+    any_near = False
+    w_at = np.empty(nodes.size)  # a near pixel's quadrature weights and ranges (and their derivatives), made once
     z_at = np.empty(nodes.size)
+    dw_at = np.empty((2, nodes.size))
+    dz_at = np.empty((2, nodes.size))
     for i in range(var_lin.size):
         z = z0[i]
         v = var_lin[i]
@@ -68,33 +162,21 @@ def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, n
             var_out[i] = v * (1.0 + 8.0 * rel)
             k4_out[i] = k4 + 72.0 * rel * v * v
             fill[i] = 1.0
+            if with_partials:
+                for r in range(8):
+                    partials[i, r] = 0.0
+                partials[i, 0] = 1.0 + 16.0 * rel
+                partials[i, 3] = 216.0 * rel * v
+                partials[i, 8] = 1.0
             continue
         any_near = True
         c = cut[i] if censored else 8.0
-        lo, hi = max(a, -c), min(c, 8.0)
-        kept_before = math.erf(c / math.sqrt(2.0)) if censored else 1.0  # 2 Phi(c) - 1
-        half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
-        d0 = fb / z
-        mass = total = 0.0
-        for j in range(nodes.size):
-            x = mid + half * nodes[j]
-            w = half * weights[j] * math.exp(-0.5 * x * x) * inv_root_2pi
-            den = max(d0 + sigma_d * x, 1e-12)
-            w_at[j], z_at[j] = w, fb / den
-            mass += w
-            total += w * fb / den
-        mass = max(mass, 1e-300)
-        mean = total / mass
-        m2 = m4 = 0.0
-        for j in range(nodes.size):
-            dev = z_at[j] - mean
-            dev2 = dev * dev
-            m2 += w_at[j] * dev2
-            m4 += w_at[j] * dev2 * dev2
-        var_near = m2 / mass
-        var_out[i] = var_near
-        k4_out[i] = m4 / mass - 3.0 * var_near * var_near
-        fill[i] = mass / kept_before
+        r = _near(z, base_var[i], c, censored, fb, z_max, nodes, weights, w_at, z_at, dw_at, dz_at, with_partials)
+        var_out[i], k4_out[i], fill[i] = r[0], r[1], r[2]
+        if with_partials:  # d/d var_lin: 0 (near the end the quadrature starts again from the base variance)
+            partials[i, 0], partials[i, 3], partials[i, 8] = 0.0, 0.0, 0.0
+            partials[i, 1], partials[i, 4], partials[i, 6] = r[3], r[4], r[5]
+            partials[i, 2], partials[i, 5], partials[i, 7] = r[6], r[7], r[8]
     return any_near
 
 

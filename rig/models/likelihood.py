@@ -31,6 +31,8 @@ import numpy as np
 from numba import njit
 from scipy.special import gammaln
 
+from .tangents import Tangents, plus, scale
+
 if TYPE_CHECKING:
     from .component import ComposedModel
     from .data import ModelData
@@ -107,6 +109,44 @@ class LoglikSums:
             np.atleast_1d(np.asarray(1.0 if fill is None else fill, dtype=float)), np.ascontiguousarray(kw, dtype=float),
             np.atleast_1d(np.asarray(pw, dtype=float)), window_pos, stop_pos,
             self.kurt_num, self.kurt_den, self.fill_sum, self.fill_count)
+
+    def add_tangent(self, d: ModelData, pred: Prediction, t: Tangents) -> None:
+        """Add the rows' share of the gradient: their prediction's derivatives `t` (`rig.models.tangents`) times
+        the likelihood's own, d/d var of the Gamma terms, and the kurtosis windows' and stops' sums' derivatives."""
+        if not hasattr(self, "g_gamma"):
+            self.g_gamma = np.zeros(t.m)
+            self.g_num = np.zeros((t.m, len(self.windows)))
+            self.g_fill = np.zeros((t.m, len(self.stops)))
+        a, b, kw, pw = likelihood_weights(d)
+        window_pos, stop_pos = self._positions(d)
+        v = np.asarray(pred.var_m2, dtype=float)
+        if t.var is not None:
+            self.g_gamma += t.var @ ((b / v - a) / v)  # d/dv of -(a ln v + b / v)
+        if len(self.windows):
+            inw = window_pos >= 0
+            k4 = 0.0 if pred.k4_m4 is None else np.broadcast_to(pred.k4_m4, v.shape)
+            contrib = plus(scale(t.k4, kw / v**2), scale(t.var, -2.0 * kw * k4 / v**3))  # d (kw k4 / v^2)
+            if contrib is not None:
+                for j in range(t.m):
+                    self.g_num[j] += np.bincount(window_pos[inw], weights=contrib[j][inw], minlength=len(self.windows))
+        if t.fill is not None:
+            contrib = t.fill * pw
+            for j in range(t.m):
+                self.g_fill[j] += np.bincount(stop_pos, weights=contrib[j], minlength=len(self.stops))
+
+    def gradient(self) -> np.ndarray:
+        """d `total()` / d parameters, from the sums `add_tangent` made."""
+        g = self.g_gamma.copy()
+        if len(self.windows):
+            den = np.maximum(self.kurt_den, 1e-300)
+            predicted = 3.0 + self.kurt_num / den
+            z = (self.kurt_measured - predicted) / self.kurt_se
+            g += self.g_num @ (z / self.kurt_se / den)  # d(-z^2 / 2) = z / se d predicted
+        seen = self.fill_count > 0
+        if seen.any():
+            z = (self.fill_measured[seen] - self.fill_sum[seen] / self.fill_count[seen]) / self.fill_se[seen]
+            g += self.g_fill[:, seen] @ (z / self.fill_se[seen] / self.fill_count[seen])
+        return g
 
     def _positions(self, d: ModelData) -> tuple[np.ndarray, np.ndarray]:
         """Each row's index among the measured kurtosis windows (-1: none) and among the stops; kept with `d`."""
@@ -189,6 +229,22 @@ def model_loglik(model: ComposedModel, values: dict[str, float], d: ModelData) -
         pred: Prediction = model.predict(values, c)
         sums.add(c, pred.var_m2, pred.k4_m4, pred.fill)
     return sums.total() + gamma_constant(d)
+
+
+def model_loglik_gradient(model: ComposedModel, values: dict[str, float], d: ModelData,
+                          names: list[str]) -> tuple[float, np.ndarray]:
+    """`model_loglik` and its gradient over the parameters `names`, analytic (`rig.models.tangents`): the model's
+    base and every effect must carry their derivatives (`tangents.analytic`)."""
+    prepare(d)
+    sums = LoglikSums(d)
+    for c in d.pieces():
+        t = Tangents(names, len(c))
+        pred: Prediction = model.predict(values, c, t)
+        sums.add(c, pred.var_m2, pred.k4_m4, pred.fill)
+        sums.add_tangent(c, pred, t)
+    if not hasattr(sums, "g_gamma"):
+        return sums.total() + gamma_constant(d), np.zeros(len(names))
+    return sums.total() + gamma_constant(d), sums.gradient()
 
 
 def prepare(d: ModelData) -> None:

@@ -16,8 +16,10 @@ from .closed_form import power_law_mle
 from .data import ModelData
 from .error_notes import error_notes
 from .independence import error_inflation
+from .likelihood import model_loglik_gradient
 from .parameters import Param
 from .result import ModelFit
+from .tangents import analytic
 
 if TYPE_CHECKING:
     from .component import ComposedModel
@@ -43,6 +45,16 @@ def _from_free(y: float, p: Param) -> float:
     if math.isfinite(lo) and math.isfinite(hi):
         return lo + (hi - lo) / (1 + math.exp(-min(max(y, -700.0), 700.0)))  # a wild step must not overflow
     return y
+
+
+def _free_slope(y: float, p: Param) -> float:
+    """d x / d y of `_from_free`: (hi - lo) s (1 - s) for a bounded parameter (s the logistic of y), 1 otherwise."""
+    if math.isfinite(p.min) and math.isfinite(p.max):
+        if abs(y) >= 700.0:
+            return 0.0
+        s = 1.0 / (1.0 + math.exp(-y))
+        return (p.max - p.min) * s * (1.0 - s)
+    return 1.0
 
 
 def _hessian(f, x: np.ndarray, steps: np.ndarray, *, diagonal: bool = False) -> np.ndarray:
@@ -106,6 +118,20 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
             return 1e30
         return -ll / scale if np.isfinite(ll) else 1e30
 
+    def objective_and_gradient(y: np.ndarray) -> tuple[float, np.ndarray]:
+        """The objective and its analytic gradient (`rig.models.tangents`), by the chain rule through `unpack`."""
+        v = unpack(y)
+        try:
+            ll, g = model_loglik_gradient(model, v, work, names)
+        except FloatingPointError:
+            return 1e30, np.zeros(len(y))
+        if not (np.isfinite(ll) and np.all(np.isfinite(g))):
+            return 1e30, np.zeros(len(y))
+        slope = np.array([v[n] if n == "k" else _free_slope(yi, p) for (n, p), yi in zip(free, y)])
+        return -ll / scale, -g * slope / scale
+
+    gradient = analytic(model)
+
     starts = [pack(values)]
     if model.effects and model.base.lam is None and "lambda" not in hold:
         # effects trade off against lambda: also start from the physical exponent (paper: 3 with
@@ -121,8 +147,12 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
         for y0 in starts:
             # central differences: forward ones are too coarse on the flat ridges effects make (outliers' fraction
             # against their width), where they stopped L-BFGS-B several standard errors short of the optimum
-            r = minimize(objective, y0, method="L-BFGS-B", jac="3-point",
-                         options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
+            if gradient:
+                r = minimize(objective_and_gradient, y0, method="L-BFGS-B", jac=True,
+                             options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
+            else:
+                r = minimize(objective, y0, method="L-BFGS-B", jac="3-point",
+                             options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
             # polish with Nelder-Mead when L-BFGS-B stops early on a flat ridge; bounded, because every
             # evaluation visits every pixel (unbounded, a diagnosis could spend an hour polishing candidates)
             if not r.success and len(y0) > 1:

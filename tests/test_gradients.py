@@ -1,0 +1,140 @@
+"""The likelihood's analytic gradient (`rig.models.tangents`) against central differences of the likelihood
+itself, for every built-in effect and every empirical term, alone and composed.
+
+The differences are fourth-order (f(x +- h), f(x +- 2h)), with h 1e-4 of each parameter's scale, on recordings
+that reach every branch: a 0.05 mm depth unit with a stop at 3.1 m (the format ends at 3.28 m, so rows there
+take the quadrature near the end), projector-off frames (ambient), a camera that drifts, mismatches and drops
+samples; and a 1 mm unit where rounding to the depth unit matters. The point is off the optimum (parameters moved
+from their start), where the gradient is large and a wrong term shows."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from simrig import record_perpendicular
+
+from rig.models import parse_model
+from rig.models.closed_form import power_law_mle
+from rig.models.component import EFFECTS
+from rig.models.data import ModelData
+from rig.models.empirical import SHAPES
+from rig.models.likelihood import model_loglik_gradient
+from rig.models.tangents import analytic
+
+#: agreement asked of each parameter's derivative (times its scale), against the largest such derivative:
+#: the fourth-order differences' own error is below 1e-8 here; rows whose rounded moments sit on a kink of the
+#: rounding table (bilinear in ln s) are differenced over a smaller step per row than over the whole likelihood
+RTOL = 1e-5
+
+
+@pytest.fixture(scope="module")
+def fine(tmp_path_factory) -> ModelData:
+    path, _, _ = record_perpendicular(tmp_path_factory.mktemp("g") / "fine.h5", width=32, frames=20, seed=3,
+                                      stops_m=[0.5, 1.25, 2.25, 3.1], ambient_frames=4,
+                                      effects="noise_floor(sigma_px=0.03)+outliers(fraction=0.02)+drift+ambient")
+    return ModelData.from_recording(path)
+
+
+@pytest.fixture(scope="module")
+def coarse(tmp_path_factory) -> ModelData:
+    path, _, _ = record_perpendicular(tmp_path_factory.mktemp("g") / "coarse.h5", width=32, frames=20, seed=4,
+                                      stops_m=[0.5, 0.75, 1.0, 1.5], depth_unit_mm=1.0)
+    return ModelData.from_recording(path)
+
+
+def _point(model, d: ModelData, seed: int) -> dict[str, float]:
+    """Parameter values off the optimum: the model's start values moved by a few per cent (empirical shapes:
+    by 0.1 in ln)."""
+    rng = np.random.default_rng(seed)
+    values = {n: p.value for n, p in model.parameters()}
+    paper = power_law_mle(d.z_m, d.m2_m2, d.n, lam=model.base.lam)
+    values["k"], values["lambda"] = paper.k, paper.lam
+    partial = type(model)(model.base)
+    for e in model.effects:
+        for k, v in e.start(d, partial.predict(values, d)).items():
+            values[f"{e.name}.{k}"] = v
+        partial = partial + e
+    for n, p in model.free():
+        if n.startswith("empirical("):
+            values[n] += 0.1 * rng.standard_normal()
+        else:
+            values[n] *= 1.0 + 0.03 * rng.standard_normal()
+        values[n] = min(max(values[n], p.min), p.max)
+    return values
+
+
+def _check(spec: str, d: ModelData, seed: int = 0) -> None:
+    model = parse_model(spec)
+    assert analytic(model), f"{spec}: a built-in model must carry its own derivatives"
+    values = _point(model, d, seed)
+    names = [n for n, _ in model.free()]
+    ll, grad = model_loglik_gradient(model, values, d, names)
+    assert ll == pytest.approx(model.loglik(values, d), rel=1e-12)
+    numeric = []
+    scales = []
+    for n in names:
+        # an empirical shape's step is absolute and small: its cubic has a kink where two knots' values cross
+        s = 1e-2 if n.startswith("empirical(") else max(abs(values[n]), 1e-6)
+        h = 1e-4 * s
+
+        def f(x: float, n=n) -> float:
+            return model.loglik(dict(values, **{n: values[n] + x}), d)
+
+        numeric.append((8 * (f(h) - f(-h)) - (f(2 * h) - f(-2 * h))) / (12 * h))
+        scales.append(s)
+    a, b = np.array(grad) * scales, np.array(numeric) * scales
+    worst = np.max(np.abs(a - b))
+    assert worst <= RTOL * np.max(np.abs(b)), (
+        f"{spec}: analytic gradient {dict(zip(names, grad))} against differences {dict(zip(names, numeric))}")
+
+
+BUILT_INS = [e for e in EFFECTS if e not in ("quantization",)]
+
+
+@pytest.mark.parametrize("effect", BUILT_INS)
+def test_each_built_in_effect_has_the_likelihoods_gradient(fine, effect):
+    _check(f"power_law+{effect}", fine)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_each_empirical_term_has_the_likelihoods_gradient(fine, shape):
+    _check(f"power_law+noise_floor+empirical({shape})", fine, seed=1)
+
+
+def test_rounding_to_a_coarse_depth_unit_has_the_likelihoods_gradient(coarse):
+    _check("power_law+noise_floor+quantization", coarse)
+
+
+@pytest.mark.parametrize("spec", [
+    "active+read_noise+slant_range+incidence+ambient+noise_floor",
+    "power_law+noise_floor+censoring+outliers",
+    "power_law+drift+censoring+empirical(tails)+empirical(fill)",
+    "active+noise_floor+empirical(radius)+empirical(position)",
+])
+def test_composed_models_have_the_likelihoods_gradient(fine, spec):
+    _check(spec, fine, seed=2)
+
+
+def test_the_stop_near_the_formats_end_takes_the_quadrature(fine):
+    """The fixture reaches the branch it is there for: rows within 6 standard deviations of the deepest range."""
+    z_max = 65535 * fine.depth_unit_m
+    sigma_d = np.sqrt(fine.s2_m2) * fine.fb_px_m / fine.z0_m**2
+    a = (fine.fb_px_m / z_max - fine.fb_px_m / fine.z0_m) / sigma_d
+    assert (a > -6.0).sum() > 10 and math.isclose(z_max, 3.27675)
+
+
+def test_a_users_effect_is_fitted_with_differences_instead(fine):
+    from rig.models.user_effects import UserEffect
+    from rig.models.parameters import Param
+
+    def doubled(c, gain):
+        return gain * np.ones_like(c.z_m)
+
+    e = UserEffect(doubled, stage="range", params=(Param("gain", 1e-6, 0.0, 1.0, "m^2", "added variance"),),
+                   signature="test")
+    model = parse_model("active") + e
+    assert not analytic(model)
+    fit = model.fit(fine, errors=False)
+    assert fit.converged and math.isfinite(fit.loglik)
