@@ -85,8 +85,12 @@ def plus(*terms: np.ndarray | None) -> np.ndarray | None:
     """The sum of the terms that are not None (None if none is)."""
     out = None
     for t in terms:
-        if t is not None:
-            out = t.copy() if out is None else out + t
+        if t is None:
+            continue
+        if out is None:
+            out = t.copy()
+        else:
+            out += t
     return out
 
 
