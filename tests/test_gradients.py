@@ -21,6 +21,7 @@ from rig.models.component import EFFECTS
 from rig.models.data import ModelData
 from rig.models.empirical import SHAPES
 from rig.models.likelihood import model_loglik_gradient
+from rig.models.parameters import Param
 from rig.models.tangents import analytic
 
 #: agreement asked of each parameter's derivative (times its scale), against the largest such derivative:
@@ -125,16 +126,40 @@ def test_the_stop_near_the_formats_end_takes_the_quadrature(fine):
     assert (a > -6.0).sum() > 10 and math.isclose(z_max, 3.27675)
 
 
-def test_a_users_effect_is_fitted_with_differences_instead(fine):
+#: a user's effect at each stage, as a function of the covariates (`rig.models.user_effects`)
+USER_STAGES = {
+    "illumination": (lambda c, n: 1.0 / np.maximum(c.cos_off_axis, 0.1) ** n, Param("n", 1.5, 0.0, 10.0, "1", "power")),
+    "image_noise": (lambda c, r: r * c.z_m**2, Param("r", 0.05, 0.0, 10.0, "1", "ratio at 1 m")),
+    "disparity": (lambda c, s: s**2 * (1.0 + c.rho2), Param("s", 0.02, 0.0, 1.0, "px", "floor")),
+    "range": (lambda c, v: v * c.z_m, Param("v", 1e-7, 0.0, 1e-3, "m", "added variance per m")),
+    "variance": (lambda c, a: np.exp(a * c.rho2), Param("a", 0.3, -5.0, 5.0, "1", "growth with radius")),
+}
+
+
+@pytest.mark.parametrize("stage", USER_STAGES)
+def test_a_users_effect_has_the_likelihoods_gradient_at_every_stage(fine, stage):
+    """A user's effect has no formula rig knows: its own derivative is the function's central differences (the
+    function alone), carried by the chain rule like any other's."""
     from rig.models.user_effects import UserEffect
-    from rig.models.parameters import Param
 
-    def doubled(c, gain):
-        return gain * np.ones_like(c.z_m)
+    fn, param = USER_STAGES[stage]
 
-    e = UserEffect(doubled, stage="range", params=(Param("gain", 1e-6, 0.0, 1.0, "m^2", "added variance"),),
-                   signature="test")
-    model = parse_model("active") + e
-    assert not analytic(model)
-    fit = model.fit(fine, errors=False)
-    assert fit.converged and math.isfinite(fit.loglik)
+    def users(c, **kw):
+        return fn(c, *kw.values())
+
+    e = UserEffect(users, stage=stage, params=(param,), signature="test", name=f"users_{stage}")
+    model = parse_model("power_law+noise_floor") + e
+    assert analytic(model)
+    values = _point(model, fine, 5)
+    values[f"{e.name}.{param.name}"] = param.value * 1.1
+    names = [n for n, _ in model.free()]
+    ll, grad = model_loglik_gradient(model, values, fine, names)
+    for n, g in zip(names, grad):
+        h = 1e-4 * abs(values[n])
+
+        def f(x: float, n=n) -> float:
+            return model.loglik(dict(values, **{n: values[n] + x}), fine)
+
+        numeric = (8 * (f(h) - f(-h)) - (f(2 * h) - f(-2 * h))) / (12 * h)
+        assert g == pytest.approx(numeric, rel=1e-5, abs=1e-5 * np.max(np.abs(grad * [values[m] for m in names]))
+                                  / abs(values[n])), (stage, n)

@@ -40,6 +40,7 @@ from .component import EFFECTS, Effect, EffectFileError, add, forget, registered
 from .data import ModelData
 from .parameters import Param
 from .prediction import EffectStage, Prediction
+from .tangents import plus, scale
 
 STAGES = {
     "illumination": EffectStage.ILLUMINATION,
@@ -186,6 +187,40 @@ class UserEffect(Effect):
             pred.add(out)
         else:
             pred.var_m2 = pred.var_m2 * out
+
+    def apply_tangent(self, pred, p, d, t):
+        """`apply` with the derivatives carried through: the function's own derivative with respect to each of its
+        parameters by central differences of the function alone (one-sided at a bound), not of the likelihood."""
+        own = self.own(p)
+        out = self.evaluate(d, own)
+        dout = t.seeded([(i, self._derivative(d, own, name)) for i, name in t.own_rows(self)])
+        if self.stage_name == "illumination":
+            factor = np.where(d.projector_on, out, 1.0)
+            t.illum = plus(scale(t.illum, factor), scale(dout, np.where(d.projector_on, pred.illum, 0.0)))
+            pred.illum = pred.illum * factor
+        elif self.stage_name == "image_noise":
+            t.image = plus(t.image, dout)
+            pred.image_terms = pred.image_terms + out
+        elif self.stage_name == "disparity":
+            t.var = plus(t.var, scale(dout, d.disparity_to_range(1.0)))
+            pred.add(d.disparity_to_range(out))
+        elif self.stage_name == "range":
+            t.var = plus(t.var, dout)
+            pred.add(out)
+        else:
+            t.var = plus(scale(t.var, out), scale(dout, pred.var_m2))
+            pred.var_m2 = pred.var_m2 * out
+
+    def _derivative(self, d: ModelData, own: Any, name: str) -> np.ndarray:
+        q = next(q for q in self.params if q.name == name)
+        x = getattr(own, name)
+        h = 1e-6 * abs(x) if x != 0 else 1e-9 * (q.max - q.min if np.isfinite(q.max - q.min) else 1.0)
+        up, down = min(x + h, q.max), max(x - h, q.min)
+        if up <= down:
+            return np.zeros(len(d))
+        f_up = self.evaluate(d, own._replace(**{name: up}))
+        f_down = self.evaluate(d, own._replace(**{name: down}))
+        return (f_up - f_down) / (up - down)
 
 
 def effect(*, stage: str, params: Sequence[Param] = (), signature: str, name: str | None = None) -> Callable[[Callable[..., Any]], UserEffect]:
