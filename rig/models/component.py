@@ -104,7 +104,7 @@ class Effect(Component):
 
     def apply_tangent(self, pred: Prediction, p: Any, d: ModelData, t: Any) -> None:
         """`apply`, carrying the derivatives `t` (`rig.models.tangents.Tangents`) through it by the chain rule.
-        An effect without one (a user's) is fitted with central differences of the whole likelihood instead."""
+        A model with an effect that has none is fitted with central differences of the whole likelihood instead."""
         raise NotImplementedError
 
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:

@@ -10,10 +10,11 @@ per parameter, and every stage that changes the prediction changes them by the c
 written next to its formula) instead of `apply`.
 
 A quantity whose derivative is zero for every parameter is None (most are: fill until censoring or
-the mixture, illumination for every built-in effect). An effect without `apply_tangent` (a user's
-effect) makes the model fall back to central differences of the whole likelihood
-(`rig.models.optimise`); `tests/test_gradients.py` checks every built-in and empirical term's
-gradient against those differences.
+the mixture, illumination for every built-in effect). A user's effect (`rig.models.user_effects`)
+differences its own function per row for its parameters; an `Effect` subclass without `apply_tangent`
+makes the model fall back to central differences of the whole likelihood (`rig.models.optimise`).
+`tests/test_gradients.py` checks every built-in, empirical and user term's gradient against those
+differences.
 """
 
 from __future__ import annotations
