@@ -330,6 +330,38 @@ PATCHES: tuple[Patch, ...] = (
         "  sys_rt_exec_accessory_override |= (mask);\n",
         "  __atomic_or_fetch(&sys_rt_exec_accessory_override, (mask), __ATOMIC_SEQ_CST); // rig patch: atomic\n",
     ),
+    Patch(
+        "segment-underrun: wait", "stepper.c",
+        "ISR(TIMER1_COMPA_vect)\n{\n",
+        "// rig patch: on the AVR the main program preps step segments while this interrupt runs them, always fast\n"
+        "// enough that the segment buffer runs dry only where the motion ends. On a loaded host the main program's\n"
+        "// thread can wait for a core for tens of ms while the simulator's thread catches up with real time at many\n"
+        "// times its pace; the buffer then ran dry mid-move, GRBL ended the cycle (Idle, MPos short of the target)\n"
+        "// and started it again at once, and a status report in between said Idle at the wrong place. While the\n"
+        "// main program owes a segment (a cycle, homing or jog whose motion is not ending, a block still planned),\n"
+        "// wait for it here: the simulated time stands still, as the AVR's would have gone on only with it\n"
+        "// (at most RIG_UNDERRUN_WAIT_US, so that nothing can hang on it).\n"
+        "#define RIG_UNDERRUN_WAIT_US 2000000L\n"
+        "void platform_sleep(long microsec);\n"
+        "static void rig_wait_for_segment(void) {\n"
+        "  for (long waited = 0; waited < RIG_UNDERRUN_WAIT_US; waited += 50) {\n"
+        "    if (*(volatile uint8_t *)&segment_buffer_head != segment_buffer_tail) { return; }\n"
+        "    if (!(*(volatile uint8_t *)&sys.state & (STATE_CYCLE | STATE_HOMING | STATE_JOG))) { return; }\n"
+        "    if (*(volatile uint8_t *)&sys.step_control & STEP_CONTROL_END_MOTION) { return; }\n"
+        "    if (plan_get_current_block() == NULL) { return; }\n"
+        "    platform_sleep(50);\n"
+        "  }\n"
+        "}\n\n"
+        "ISR(TIMER1_COMPA_vect)\n{\n",
+    ),
+    Patch(
+        "segment-underrun: call", "stepper.c",
+        "    // Anything in the buffer? If so, load and initialize next step segment.\n"
+        "    if (segment_buffer_head != segment_buffer_tail) {\n",
+        "    rig_wait_for_segment(); // rig patch (above the interrupt)\n"
+        "    // Anything in the buffer? If so, load and initialize next step segment.\n"
+        "    if (*(volatile uint8_t *)&segment_buffer_head != segment_buffer_tail) {\n",
+    ),
 )
 
 RIG_HW_C = r"""/*

@@ -337,3 +337,56 @@ def test_query_talks_to_the_firmware_outside_the_clients_port(stock):
     _, later = stock.sim_clock()
     # simulated time keeps up with real time (the patched sim sleeps when idle instead of falling behind)
     assert (later - seconds) / (time.monotonic() - t0) == pytest.approx(1.0, abs=0.1)
+
+
+#: a main program that loses its core for 150 ms on every 40th segment prep in a cycle, as a loaded host's
+#: scheduler may do to it: what the segment-underrun patch is for
+STALLED_MAIN = grbl_firmware.Patch(
+    "test: stalled main program", "stepper.c",
+    "void st_prep_buffer()\n{\n",
+    "void platform_sleep(long microsec);\n"
+    "void st_prep_buffer()\n{\n"
+    "  { static int calls = 0; if (sys.state == STATE_CYCLE && ++calls % 40 == 0) { platform_sleep(150000); } }\n",
+)
+
+
+def _first_idle(exe, tmp_path) -> tuple[str, int]:
+    """Move 20 mm (1 s at 20 mm/s) under a flood of '?' (20 a millisecond, so that every pass of GRBL's realtime
+    loop reports: a cycle ended and restarted at once shows as one Idle report); the first Idle report and how
+    many reports came."""
+    with GrblFirmware(tmp_path, exe=exe, rail_mm=400.0, x0_mm=10.0, settings={110: 1200, 120: 100}) as fw:
+        ser = serial.Serial(fw.port, 115200, timeout=0)
+        try:
+            ser.write(b"G91 G1 X20 F1200\n")
+            buf, reports, deadline = b"", 0, time.monotonic() + 20.0
+            time.sleep(0.05)  # the line reaches the planner before the first '?'
+            while time.monotonic() < deadline:
+                ser.write(b"?" * 20)
+                time.sleep(0.001)
+                buf += ser.read(1 << 16)
+                *lines, buf = buf.split(b"\n")
+                for line in (raw.decode("latin-1").rstrip("\r") for raw in lines):
+                    match = REPORT.match(line)
+                    if match:
+                        reports += 1
+                        if match.group(1) == "Idle":
+                            return line, reports
+            raise AssertionError("the move never ended")
+        finally:
+            ser.close()
+
+
+@pytest.mark.parametrize("fixed", [True, False], ids=["with the patch", "without it"])
+def test_a_main_program_that_loses_its_core_mid_move_never_reports_idle_short_of_the_target(exe, tmp_path, fixed):
+    """CI on a loaded 2-core machine saw a move end Idle at MPos 9.868 for 10.000 and a homing pull-off go the
+    wrong way: grbl-sim's simulator thread, catching up with real time, ran the step segments faster than the
+    descheduled main program could prep them, the buffer ran dry mid-move and GRBL ended the cycle there. Stall
+    the main program on purpose (150 ms, 40 times a move): without the segment-underrun patch the first Idle
+    report comes short of 20 mm; with it, the simulated time waits for the main program, as the AVR's would."""
+    base = grbl_firmware.PATCHES if fixed else grbl_firmware.patches_without("segment-underrun")
+    variant = grbl_firmware.build_firmware((*base, STALLED_MAIN))
+    report, reports = _first_idle(variant, tmp_path)
+    if fixed:
+        assert mpos_x(report) == 20.0, report
+    else:
+        assert mpos_x(report) < 20.0, f"the stall did not starve the stepper: {report} (so this test proves nothing)"
