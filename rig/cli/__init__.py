@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     from protocols.recording import RecordingError
     from protocols.runner import RunError
 
-    from ..models import EffectFileError
+    from ..effect_errors import EffectFileError
 
     from protocols.disk_space import is_disk_full, is_storage_failure
 

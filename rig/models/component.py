@@ -27,6 +27,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
+from ..effect_errors import EffectFileError
 from .parameters import Param
 from .prediction import EffectStage, Prediction
 
@@ -34,11 +35,6 @@ if TYPE_CHECKING:
     import numpy as np
 
     from .data import ModelData
-
-
-class EffectFileError(ValueError):
-    """An effect, or a file of effects, that cannot be used (a bad definition, a name taken twice); the message
-    names the effect, where it comes from, and the fix, in one line."""
 
 
 class Component:

@@ -24,9 +24,10 @@ import os
 import sys
 import threading
 import time
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from ..models.progress import WorkProgress
+if TYPE_CHECKING:  # only named here: `rig run` must not load the models (scipy, numba) to show its progress
+    from ..models.progress import WorkProgress
 
 BAR_WIDTH = 14
 REDRAW_S = 0.5
