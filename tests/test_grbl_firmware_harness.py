@@ -339,15 +339,21 @@ def test_query_talks_to_the_firmware_outside_the_clients_port(stock):
     assert (later - seconds) / (time.monotonic() - t0) == pytest.approx(1.0, abs=0.1)
 
 
-#: a main program that loses its core for 150 ms on every 40th segment prep in a cycle, as a loaded host's
-#: scheduler may do to it: what the segment-underrun patch is for
+#: a main program that loses its core for 150 ms on every 400th segment prep of a move or a homing cycle (every
+#: 30-100 ms), as a loaded host's scheduler may do to it: what the segment-underrun patch is for
 STALLED_MAIN = grbl_firmware.Patch(
     "test: stalled main program", "stepper.c",
     "void st_prep_buffer()\n{\n",
     "void platform_sleep(long microsec);\n"
     "void st_prep_buffer()\n{\n"
-    "  { static int calls = 0; if (sys.state == STATE_CYCLE && ++calls % 40 == 0) { platform_sleep(150000); } }\n",
+    "  { static int calls = 0;\n"
+    "    if ((sys.state & (STATE_CYCLE | STATE_HOMING)) && ++calls % 400 == 0) { platform_sleep(150000); } }\n",
 )
+
+
+def _stalled_firmware(fixed: bool):
+    base = grbl_firmware.PATCHES if fixed else grbl_firmware.patches_without("segment-underrun")
+    return grbl_firmware.build_firmware((*base, STALLED_MAIN))
 
 
 def _first_idle(exe, tmp_path) -> tuple[str, int]:
@@ -383,10 +389,27 @@ def test_a_main_program_that_loses_its_core_mid_move_never_reports_idle_short_of
     descheduled main program could prep them, the buffer ran dry mid-move and GRBL ended the cycle there. Stall
     the main program on purpose (150 ms, 40 times a move): without the segment-underrun patch the first Idle
     report comes short of 20 mm; with it, the simulated time waits for the main program, as the AVR's would."""
-    base = grbl_firmware.PATCHES if fixed else grbl_firmware.patches_without("segment-underrun")
-    variant = grbl_firmware.build_firmware((*base, STALLED_MAIN))
-    report, reports = _first_idle(variant, tmp_path)
+    report, reports = _first_idle(_stalled_firmware(fixed), tmp_path)
     if fixed:
         assert mpos_x(report) == 20.0, report
     else:
         assert mpos_x(report) < 20.0, f"the stall did not starve the stepper: {report} (so this test proves nothing)"
+
+
+@pytest.mark.parametrize("fixed", [True, False], ids=["with the patch", "without it"])
+def test_a_main_program_that_loses_its_core_while_homing_still_finds_the_switch(tmp_path, fixed):
+    """The same stalls during `$H`: a homing search whose segments ran dry ended as if it had travelled its whole
+    search distance without meeting the switch (ALARM:9, as CI saw with the switch 150 mm away on a 300 mm rail);
+    with the patch it finds the switch and pulls off."""
+    settings = {110: 1200, 120: 100, 22: 1, 25: 1200, 24: 300, 27: 2}
+    with GrblFirmware(tmp_path, exe=_stalled_firmware(fixed), rail_mm=300.0, x0_mm=260.0, settings=settings) as fw:
+        c = Client(fw.port)
+        try:
+            reply = c.command("$H", timeout_s=60.0)
+        finally:
+            c.close()
+        if fixed:
+            assert reply[-1] == "ok", reply
+            assert fw.physical_x_mm() == pytest.approx(300.0 - 2.0)
+        else:
+            assert "ALARM:9" in reply, f"the stalls did not starve the homing search: {reply} (so this proves nothing)"
