@@ -16,7 +16,7 @@ from pathlib import Path
 from . import capture, data, fitting, importing
 from .figures import table, write_json
 
-GROUPS = ("streaming", "capture", "camera", "run", "commands", "per-sample", "scaling", "import")
+GROUPS = ("streaming", "capture", "camera", "run", "commands", "small", "per-sample", "scaling", "import")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
                 figures += fitting.commands(sweep, work)
             if "scaling" in want:
                 figures += fitting.scaling(sweep)
+        if "small" in want:
+            figures += fitting.small(data.demo_recording(work), work)
         if "per-sample" in want:
             figures += fitting.against_per_sample(data.raw_recording(work))
         if "import" in want:

@@ -83,3 +83,19 @@ def png_folder(workdir: Path, size: Size) -> Path:
         f"fx = {i.fx}\nfy = {i.fy}\ncx = {i.cx}\ncy = {i.cy}\nbaseline_m = 0.05\ndepth_unit_m = 0.0001\n"
         f"projector_on = true\nstop_distance_from_name = '([0-9.]+)m'\n")
     return folder
+
+
+def demo_recording(workdir: Path) -> Path:
+    """The demo's hidden-effect recording as `rig demo` makes it (106x60 px, 11 stops of 100 frames, a 0.05 mm
+    depth unit, a disparity noise floor the paper's model lacks): what issue 30's operator waits on."""
+    path = workdir / "demo-106x60-unknown.h5"
+    if not path.exists():
+        from protocols import Runner, perpendicular
+        from rig.devices import open_devices
+        from rig.simulation.demo import DEMO_NOISE_FLOOR_PX
+
+        devices = open_devices(f"fake:width=106,height=60,depth_unit_mm=0.05,seed=7,"
+                               f"effects=noise_floor(sigma_px={DEMO_NOISE_FLOOR_PX})", "fake:")
+        Runner(devices.camera, devices.stage, sleep=devices.sleep).run(
+            perpendicular(frames_per_stop=100, projector_on=True, ambient_frames=3), path)
+    return path

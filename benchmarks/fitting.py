@@ -51,6 +51,26 @@ def commands(sweep: Path, workdir: Path) -> list[Figure]:
     return out
 
 
+def small(demo: Path, workdir: Path) -> list[Figure]:
+    """What the operator waits for on the demo's 106x60 recording (issue 30's targets, CPU s): `rig diagnose`
+    (one process, as the demo runs it) and `rig fit --model` with an empirical term as a user runs it (with its
+    held-out score), each against the paper's script on the same file."""
+    script = workdir / "paper_fit.py"
+    script.write_text(PAPER_SCRIPT)
+    base_cpu, _, _, _ = run_measured([sys.executable, str(script), str(demo)])
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        diag_cpu, diag_mb, diag_wall, _ = run_measured([RIG, "-q", "diagnose", str(demo), "--jobs", "1", "--out", tmp])
+    out.append(Figure("rig diagnose on the demo's 106x60 recording (--jobs 1), CPU", diag_cpu, base_cpu, "s", "< 5 s",
+                      diag_cpu < 5.0, "the paper's script on it", note=f"wall {diag_wall:.1f} s; peak {diag_mb:.0f} MB"))
+    model = "active+noise_floor+empirical(radius)"
+    fit_cpu, _, fit_wall, _ = run_measured([RIG, "-q", "fit", str(demo), "--model", model])
+    out.append(Figure(f"rig fit --model {model} on the demo's recording (with its held-out score), CPU", fit_cpu,
+                      base_cpu, "s", "< 5 s", fit_cpu < 5.0, "the paper's script on it",
+                      note=f"wall {fit_wall:.1f} s, over the processes"))
+    return out
+
+
 def against_per_sample(raw: Path) -> list[Figure]:
     """The fit from per-pixel statistics against the paper's MLE over every raw sample, same recording."""
     from protocols.recording import Recording

@@ -33,7 +33,7 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     r = diag.residuals
     paths = []
-    fig, axes = plt.subplots(2, 3, figsize=(14, 8))
+    fig, axes = plt.subplots(2, 3, figsize=(14, 8), layout="tight")
     _ratio_panel(axes[0, 0], r.by_range, "Z [m]", "by range (0.25 m windows)")
     _ratio_panel(axes[0, 1], r.by_radius, "ρ = radius / f", "by distance from the image centre")
     if r.by_brightness is not None:
@@ -63,13 +63,12 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     ax.set_xticks([])
     ax.set_yticks([])
     fig.suptitle(f"Where {diag.model_fit.model.name} fails: red points are off by more than 3 standard errors")
-    fig.tight_layout()
     p = out / "diagnosis-residuals.png"
     fig.savefig(p, dpi=100)
     plt.close(fig)
     paths.append(p)
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(7, 4), layout="tight")
     cands = diag.candidates
     names = [c.effect.name for c in cands]
     vals = [max(-c.dbic, 0.1) for c in cands]
@@ -80,7 +79,6 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     ax.axvline(10, color="k", ls=":", lw=0.8)
     ax.set_xlabel("evidence: BIC drop when the effect is added (log scale; dotted: significance)")
     ax.set_title("Candidate effects")
-    fig.tight_layout()
     p = out / "diagnosis-candidates.png"
     fig.savefig(p, dpi=100)
     plt.close(fig)
@@ -113,7 +111,7 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
             errors.append(st.headline.error_pct)
             noise.append(st.headline.noise_pct)
             within.append(st.headline.within_noise)
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.4))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.4), layout="tight")
     x = np.arange(len(names))
     ax.bar(x, errors, color=["tab:green" if w else "tab:red" for w in within])
     ax.plot(x, noise, "k_", ms=30, mew=2, label="sampling noise alone")
@@ -141,6 +139,5 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
     ax2.set_title(f"headline error {diag.model_headline.error_pct:.2f} % → {diag.final_headline.error_pct:.2f} %")
     ax2.legend(fontsize=7)
     ax2.grid(alpha=0.3)
-    fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -23,7 +23,7 @@ QUANTILE_BINS = 12
 def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d: ModelData, path: Path) -> Path:
     """One figure: the residual of the model before the term, binned along the covariate, and the term's shape."""
     term, after = step.term, step.fit
-    fig, ax = plt.subplots(figsize=(7.5, 4.4))
+    fig, ax = plt.subplots(figsize=(7.5, 4.4), layout="tight")
     if isinstance(term, EmpiricalSigma):
         unit, read = COVARIATES[term.covariate]
         c = read(d)
@@ -81,7 +81,6 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
                  f"{before_error_pct:.2f} % → {step.headline.error_pct:.2f} %)", fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -51,7 +51,7 @@ def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str 
     line of slope lambda.
     """
     path = Path(path)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), layout="tight")
     for ax, loglog in zip(axes, (False, True)):
         for s in series:
             m = s.measured
@@ -73,7 +73,6 @@ def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str 
         else:
             ax.set_title(title)
             ax.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
