@@ -12,7 +12,8 @@ family of statistics the model predicts, each bin against its own sampling error
       z = (measured - predicted) / se, the measured kurtosis model-free (`ModelData.pixel_kurtosis`)
       and its se from the pixels' scatter
   fill rate by stop
-      z = (measured - predicted) / se, se binomial over the stop's pixel-frames
+      z = (measured - predicted) / se, se binomial over the stop's pixel-frames (the measured share's
+      or the model's, the larger)
   frame mean by stop (time): the variance over frames of the frame's mean of 1/z
       predicted: sum(var / Z^4) / n_valid^2 from independent pixels, plus any common wander the
       model has (drift); z = ln(measured / predicted) / sqrt(2 / (frames - 1))
@@ -116,8 +117,12 @@ def fill_check(d: ModelData, stops: StopSums) -> Check:
     keys = sorted(stops.rows)
     rows = np.array([stops.rows[k] for k in keys]).reshape(len(keys), -1)
     count, fill, binomial, frames, predicted, z = (rows[:, i] for i in range(6))
+    binomial_model = rows[:, 10]
     measured = fill / count
-    se = np.maximum(np.sqrt(binomial) / count, 1.0 / frames)
+    # the binomial variance of the measured share and of the model's, the larger: when a model expects a few
+    # samples lost of a million and none were, the measured share's variance is 0 (it was floored at one sample,
+    # so 6.5 samples expected and none seen read as 6.5 standard errors; under the model it is 6.5 / sqrt(6.5))
+    se = np.maximum(np.sqrt(np.maximum(binomial, binomial_model)) / count, 1.0 / frames)
     labels = [_stop_label(d, k) for k in keys]
     return Check("fill rate", "stop", labels, z / count, measured, predicted / count, se, (measured - predicted / count) / se)
 

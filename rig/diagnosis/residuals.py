@@ -155,7 +155,8 @@ class StopSums:
             w = np.maximum(c.n[m] - 1, 0)  # the pixel's consecutive pairs, about (lag-1 correlation: rig.models.independence)
             row = np.array([np.size(f), f.sum(), (f * (1 - f) / frames[m]).sum(), frames[m].sum(), fill_p[m].sum(),
                             c.z_m[m].sum(), independent[m].sum(), common[m].sum(), (w * common[m] * z4[m]).sum(),
-                            (w * np.broadcast_to(pred.var_m2, c.z_m.shape)[m]).sum()])
+                            (w * np.broadcast_to(pred.var_m2, c.z_m.shape)[m]).sum(),
+                            (fill_p[m] * (1 - fill_p[m]) / frames[m]).sum()])
             key = int(s)
             self.rows[key] = self.rows[key] + row if key in self.rows else row
 
