@@ -134,12 +134,9 @@ class EmpiricalSigma(Effect):
         g, jac = smooth_jacobian(self._axis(knots), g_at, np.nan_to_num(x))
         mult = np.exp(2.0 * np.where(ok, g, 0.0))
         pred.var_m2 = pred.var_m2 * mult
-        own = [(i, 2.0 * pred.var_m2 * np.where(ok, jac[j + 1], 0.0)) for j, (i, _) in enumerate(self._rows(t))
-               if i is not None]
+        knot = {q.name: j + 1 for j, q in enumerate(self.params)}  # parameter g_j is the value at knot j (knot 0: 0)
+        own = [(i, 2.0 * pred.var_m2 * np.where(ok, jac[knot[name]], 0.0)) for i, name in t.own_rows(self)]
         t.var = plus(scale(t.var, mult), t.seeded(own))
-
-    def _rows(self, t) -> list[tuple[int | None, str]]:
-        return [(t.row(self, q.name), q.name) for q in self.params]
 
 
 class EmpiricalPosition(Effect):
