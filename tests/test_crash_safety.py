@@ -16,6 +16,7 @@ import pytest
 from protocols.recording import Recording
 from protocols.run_lock import lock_path
 from protocols.stop_journal import journal_dir
+from tiny_runs import tiny_run_env
 
 CHILD = Path(__file__).with_name("crash_child.py")
 ALL = [f"{z:.3f}m" for z in (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0)]
@@ -39,7 +40,7 @@ EXACT_RAW = [("before:commit", 2), ("after:commit", 2), ("before:h5_close", 3), 
 
 def child(out: Path, point: str = "none", n: int = 0, *flags: str, timeout: float = 120) -> tuple[int, list[str]]:
     p = subprocess.run([sys.executable, str(CHILD), str(out), point, str(n), *flags], capture_output=True, text=True,
-                       timeout=timeout)
+                       timeout=timeout, env=tiny_run_env())
     assert "Traceback" not in p.stderr, p.stderr
     return p.returncode, [line.split()[1] for line in p.stdout.splitlines() if line.startswith("done ")]
 
@@ -102,7 +103,8 @@ def test_kills_at_random_instants(tmp_path):
     kills = 0
     for trial in range(8):
         out = tmp_path / f"r{trial}.h5"
-        proc = subprocess.Popen([sys.executable, str(CHILD), str(out), "none", "0"], stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen([sys.executable, str(CHILD), str(out), "none", "0"], stdout=subprocess.PIPE, text=True,
+                                env=tiny_run_env())
         k, done = rng.randint(1, len(ALL)), []
         while len(done) < k:
             line = proc.stdout.readline()

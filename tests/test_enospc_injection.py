@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from protocols.recording import Recording
+from tiny_runs import tiny_run_env
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = [str(Path(sys.executable).parent / "rig")]
@@ -31,19 +32,24 @@ def _strace() -> str:
     return path
 
 
+def _env(args: list[str]) -> dict[str, str] | None:
+    """A tiny fake run goes without numba's compiler (tests/tiny_runs.py); an import reads a real 640x480 bag."""
+    return tiny_run_env() if args[0] == "run" else None
+
+
 def _rig(args: list[str], cwd: Path, inject: tuple[str, int] | None = None) -> subprocess.CompletedProcess:
     cmd = RIG + args
     if inject is not None:
         call, n = inject
         cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:error=ENOSPC:when={n}", *cmd]
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120)
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120, env=_env(args))
 
 
 def _calls(args: list[str], cwd: Path, call: str) -> int:
     """How many times the command makes `call` on a disk with room."""
     log = cwd / f"{call}.strace"
     subprocess.run([_strace(), "-f", "-o", str(log), "-e", f"trace={call}", *RIG, *args], cwd=cwd, check=True,
-                   capture_output=True, timeout=120)
+                   capture_output=True, timeout=120, env=_env(args))
     n = sum(f"{call}(" in line for line in log.read_text().splitlines())
     for p in cwd.iterdir():
         if p != log:
@@ -124,7 +130,7 @@ def test_a_full_disk_while_diagnose_writes_its_report_is_one_line_and_leaves_no_
 
 def _rig_eio(args: list[str], cwd: Path, call: str, n: int) -> subprocess.CompletedProcess:
     cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:error=EIO:when={n}", *RIG, *args]
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120)
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120, env=_env(args))
 
 
 def test_an_io_error_is_one_line_naming_what_is_saved(tmp_path):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from protocols.leftovers import dead_leftovers
 from protocols.recording import Recording
-from test_enospc_injection import IMPORT, RUN, _calls, _strace
+from test_enospc_injection import IMPORT, RUN, _calls, _env, _strace
 
 RIG = [str(Path(sys.executable).parent / "rig")]
 
@@ -23,14 +23,14 @@ RIG = [str(Path(sys.executable).parent / "rig")]
 def _killed(args: list[str], cwd: Path, call: str, n: int) -> int:
     cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:signal=KILL:when={n}",
            *RIG, *args]
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, timeout=120).returncode
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, timeout=120, env=_env(args)).returncode
 
 
 def _main_writes(args: list[str], cwd: Path) -> int:
     """The writes of the rig process itself (strace counts each process's calls apart for `when=`)."""
     log = cwd / "w.strace"
     subprocess.run([_strace(), "-f", "-o", str(log), "-e", "trace=write", *RIG, *args], cwd=cwd, check=True,
-                   capture_output=True, timeout=120)
+                   capture_output=True, timeout=120, env=_env(args))
     per_pid: dict[str, int] = {}
     for line in log.read_text().splitlines():
         if " write(" in line:
@@ -57,7 +57,7 @@ def test_kills_during_a_run_leave_nothing_after_the_resume(tmp_path):
         _killed(RUN, tmp_path, call, n)
         strays += len(_strays(tmp_path))
         again = [*RUN, "--resume"] if (tmp_path / "run.h5").exists() else RUN
-        p = subprocess.run(RIG + again, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        p = subprocess.run(RIG + again, cwd=tmp_path, capture_output=True, text=True, timeout=120, env=_env(again))
         assert p.returncode == 0, (call, n, p.stderr)
         assert sorted(x.name for x in tmp_path.iterdir()) == ["run.h5"], (call, n, list(tmp_path.iterdir()))
         with Recording(tmp_path / "run.h5") as rec:
