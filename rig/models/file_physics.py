@@ -41,7 +41,7 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
     k4_in = np.zeros(1) if pred.k4_m4 is None else np.ascontiguousarray(np.broadcast_to(pred.k4_m4, var_lin.shape), dtype=float)
     cut = np.zeros(1) if pred.censor is None else np.ascontiguousarray(np.broadcast_to(pred.censor[0], var_lin.shape), dtype=float)
     var_out, k4_out, fill = np.empty(n), np.empty(n), np.empty(n)
-    partials = np.empty((n, 9) if t is not None else (1, 9))
+    partials = np.empty((9, n) if t is not None else (9, 1))  # one contiguous row per partial: scaled below
     near = _transform(var_lin, base_var, k4_in, pred.k4_m4 is not None, cut, pred.censor is not None,
                       np.ascontiguousarray(d.z0_m, dtype=float), float(d.fb_px_m), MAX_DEPTH_UNITS * d.depth_unit_m,
                       NEAR_LIMIT_SIGMA, _NODES, _WEIGHTS, var_out, k4_out, fill, t is not None, partials)
@@ -54,7 +54,7 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
         return
     # partials: d var / d (var_lin, base, cut), d k4 / d (var_lin, base, cut), d fill / d (base, cut), d k4 / d k4_in
     # (1 far from the end; 0 near it, where the quadrature does not use the cumulant the row came with)
-    dv_lin, dv_base, dv_cut, dk_lin, dk_base, dk_cut, df_base, df_cut, dk_k4 = partials.T
+    dv_lin, dv_base, dv_cut, dk_lin, dk_base, dk_cut, df_base, df_cut, dk_k4 = partials
     d_base = t.var if pred.censor is None else t.censor[1]
     d_cut = None if pred.censor is None else t.censor[0]
     new_var = plus(scale(t.var, dv_lin), scale(d_base, dv_base), scale(d_cut, dv_cut))
@@ -145,7 +145,7 @@ def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, n
                var_out, k4_out, fill, with_partials, partials):  # pragma: no cover - compiled
     """Per pixel: far from the end (the disparity error a > -near_sigma of its own standard deviations from it),
     `curvature`'s closed form; near it, `_near`'s quadrature. Returns whether any pixel was near. With
-    `with_partials`, fills `partials` (rows x 9, see `range_transform`)."""
+    `with_partials`, fills `partials` (9 x rows, see `range_transform`)."""
     any_near = False
     w_at = np.empty(nodes.size)  # a near pixel's quadrature weights and ranges (and their derivatives), made once
     z_at = np.empty(nodes.size)
@@ -164,19 +164,19 @@ def _transform(var_lin, base_var, k4_in, has_k4, cut, censored, z0, fb, z_max, n
             fill[i] = 1.0
             if with_partials:
                 for r in range(8):
-                    partials[i, r] = 0.0
-                partials[i, 0] = 1.0 + 16.0 * rel
-                partials[i, 3] = 216.0 * rel * v
-                partials[i, 8] = 1.0
+                    partials[r, i] = 0.0
+                partials[0, i] = 1.0 + 16.0 * rel
+                partials[3, i] = 216.0 * rel * v
+                partials[8, i] = 1.0
             continue
         any_near = True
         c = cut[i] if censored else 8.0
         r = _near(z, base_var[i], c, censored, fb, z_max, nodes, weights, w_at, z_at, dw_at, dz_at, with_partials)
         var_out[i], k4_out[i], fill[i] = r[0], r[1], r[2]
         if with_partials:  # d/d var_lin: 0 (near the end the quadrature starts again from the base variance)
-            partials[i, 0], partials[i, 3], partials[i, 8] = 0.0, 0.0, 0.0
-            partials[i, 1], partials[i, 4], partials[i, 6] = r[3], r[4], r[5]
-            partials[i, 2], partials[i, 5], partials[i, 7] = r[6], r[7], r[8]
+            partials[0, i], partials[3, i], partials[8, i] = 0.0, 0.0, 0.0
+            partials[1, i], partials[4, i], partials[6, i] = r[3], r[4], r[5]
+            partials[2, i], partials[5, i], partials[7, i] = r[6], r[7], r[8]
     return any_near
 
 
