@@ -6,6 +6,9 @@ POINT is a function the writer calls (wrapped here, in this test process only: n
 knows about it) and N which call of it dies: the process kills itself just *before* the call
 ("before:NAME") or just *after* it returns ("after:NAME"), or "none". Every stop the runner
 reports done is printed as "done LABEL" (flushed) before the run moves on.
+
+tests/test_crash_safety.py runs it as a fork of a process that has imported it once (`run_in_fork`, through
+tests/crash_server.py): the same code, without paying for the imports in each of its ~75 trials.
 """
 
 from __future__ import annotations
@@ -56,24 +59,39 @@ def arm(point: str, n: int) -> None:
     setattr(owner, attr, wrapped)
 
 
-def main() -> None:
-    out, point, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
-    raw, resume = "--raw" in sys.argv, "--resume" in sys.argv
+def main(argv: list[str], say=lambda line: print(line, flush=True)) -> None:
+    out, point, n = argv[0], argv[1], int(argv[2])
+    raw, resume = "--raw" in argv, "--resume" in argv
     devices = open_devices("fake:width=16,height=9,seed=5", "fake:")
-    stops = {} if "--stops" not in sys.argv else {"stops_m": [float(z) for z in sys.argv[sys.argv.index("--stops") + 1].split(",")]}
+    stops = {} if "--stops" not in argv else {"stops_m": [float(z) for z in argv[argv.index("--stops") + 1].split(",")]}
     plan = perpendicular(frames_per_stop=6, keep_raw=raw, **stops)
 
     def progress(e):
         if e.kind == "stop_done":
-            print(f"done {e.stop}", flush=True)
+            say(f"done {e.stop}")
 
-    if "--on-disk-assembly" in sys.argv:  # as for a recording too big to assemble in memory
+    if "--on-disk-assembly" in argv:  # as for a recording too big to assemble in memory
         recording_writer.IN_MEMORY_ASSEMBLY_BYTES = 0
     if point != "none":
         arm(point, n)
     Runner(devices.camera, devices.stage, sleep=lambda s: None, progress=progress).run(plan, out, resume=resume)
-    print("finished", flush=True)
+    say("finished")
+
+
+def run_in_fork(argv: list[str], conn) -> None:
+    """`main` in a forked process, its lines sent through `conn` (a multiprocessing Connection) as they come; an
+    exception is sent as one "error ..." line with its traceback, and the process exits 1."""
+    import traceback
+
+    try:
+        assert os.environ.get("NUMBA_DISABLE_JIT") == "1", "not forked from tests/crash_server.py's process"
+        main(argv, conn.send)
+    except BaseException:
+        conn.send("error " + traceback.format_exc())
+        conn.close()
+        os._exit(1)
+    conn.close()
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -3,22 +3,40 @@ readable afterwards, a run with nothing done starts again cleanly, and --resume 
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import random
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import h5py
 import pytest
 
+import crash_child
 from protocols.recording import Recording
 from protocols.run_lock import lock_path
 from protocols.stop_journal import journal_dir
-from tiny_runs import tiny_run_env
 
-CHILD = Path(__file__).with_name("crash_child.py")
+#: each trial is a fork of one server process that imported the crash child once (tests/crash_server.py)
+FORKS = multiprocessing.get_context("forkserver")
+FORKS.set_forkserver_preload(["crash_server"])
+
+
+def _server() -> None:
+    """Start the fork server with this folder on its path: Python 3.11's server imports its preload from the
+    default path only, and skips a module it cannot import without a word."""
+    from multiprocessing import forkserver
+
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parent), *([old] if old else [])])
+    try:
+        forkserver.ensure_running()
+    finally:
+        if old is None:
+            del os.environ["PYTHONPATH"]
+        else:
+            os.environ["PYTHONPATH"] = old
 ALL = [f"{z:.3f}m" for z in (0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0)]
 
 # (point, which call): the header, a stop's in-memory image, the renames, HDF5's flush and close inside a
@@ -38,11 +56,37 @@ EXACT_ON_DISK = [("before:copyfile", 1), ("after:copyfile", 1), ("before:h5_copy
 EXACT_RAW = [("before:commit", 2), ("after:commit", 2), ("before:h5_close", 3), ("after:h5_close", 6)]
 
 
-def child(out: Path, point: str = "none", n: int = 0, *flags: str, timeout: float = 120) -> tuple[int, list[str]]:
-    p = subprocess.run([sys.executable, str(CHILD), str(out), point, str(n), *flags], capture_output=True, text=True,
-                       timeout=timeout, env=tiny_run_env())
-    assert "Traceback" not in p.stderr, p.stderr
-    return p.returncode, [line.split()[1] for line in p.stdout.splitlines() if line.startswith("done ")]
+def start(out, point: str = "none", n: int = 0, *flags: str):
+    """The crash child (tests/crash_child.py) started in a fork: (process, the receiving end of its lines)."""
+    _server()
+    receive, send = FORKS.Pipe(duplex=False)
+    proc = FORKS.Process(target=crash_child.run_in_fork, args=([str(out), point, str(n), *flags], send), daemon=True)
+    proc.start()
+    send.close()
+    return proc, receive
+
+
+def lines_until_exit(proc, receive, timeout: float, until=None) -> list[str]:
+    """The child's lines, until it exits (or until `until(lines)` holds); fails after `timeout` s."""
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout
+    while until is None or not until(lines):
+        if not receive.poll(max(0.0, deadline - time.monotonic())):
+            proc.kill()
+            raise AssertionError(f"the crash child sent nothing for {timeout} s: {lines}")
+        try:
+            lines.append(receive.recv())
+        except EOFError:
+            break
+    assert not any(line.startswith("error ") for line in lines), lines[-1]
+    return lines
+
+
+def child(out, point: str = "none", n: int = 0, *flags: str, timeout: float = 120) -> tuple[int, list[str]]:
+    proc, receive = start(out, point, n, *flags)
+    lines = lines_until_exit(proc, receive, timeout)
+    proc.join(timeout)
+    return proc.exitcode, [line.split()[1] for line in lines if line.startswith("done ")]
 
 
 def check_after_kill(out: Path, done: list[str], raw: bool) -> None:
@@ -103,22 +147,17 @@ def test_kills_at_random_instants(tmp_path):
     kills = 0
     for trial in range(8):
         out = tmp_path / f"r{trial}.h5"
-        proc = subprocess.Popen([sys.executable, str(CHILD), str(out), "none", "0"], stdout=subprocess.PIPE, text=True,
-                                env=tiny_run_env())
-        k, done = rng.randint(1, len(ALL)), []
-        while len(done) < k:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            if line.startswith("done "):
-                done.append(line.split()[1])
+        proc, receive = start(out)
+        k = rng.randint(1, len(ALL))
+        lines = lines_until_exit(proc, receive, 120, until=lambda got: sum(x.startswith("done ") for x in got) >= k)
         time.sleep(rng.uniform(0.0, 0.05))
-        proc.send_signal(signal.SIGKILL)
-        rest, _ = proc.communicate()
-        done += [line.split()[1] for line in rest.splitlines() if line.startswith("done ")]
-        if proc.returncode == 0:
+        proc.kill()  # SIGKILL
+        lines += lines_until_exit(proc, receive, 120)
+        proc.join(120)
+        done = [line.split()[1] for line in lines if line.startswith("done ")]
+        if proc.exitcode == 0:
             continue  # it finished first
-        assert proc.returncode == -signal.SIGKILL, proc.returncode
+        assert proc.exitcode == -signal.SIGKILL, proc.exitcode
         kills += 1
         check_after_kill(out, done, raw=False)
     assert kills >= 6, f"only {kills} of 8 trials were killed before the run finished"
