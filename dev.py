@@ -76,6 +76,8 @@ def main(argv: list[str]) -> int:
         return 0
     if cmd == "demo":
         return subprocess.call([str(BIN / "rig"), "demo", *rest])
+    if not rest:  # the whole suite: numba's kernels compiled once here, not by every worker at once (tests/warm_kernels.py)
+        subprocess.call([str(BIN / "python"), str(ROOT / "tests" / "warm_kernels.py")], cwd=ROOT, stdout=subprocess.DEVNULL)
     return subprocess.call([str(BIN / "python"), "-m", "pytest", *rest], cwd=ROOT)
 
 
