@@ -51,6 +51,7 @@ SLOW_FILES = {
     "test_cli_flags.py", "test_cli_outputs.py", "test_cli_progress.py", "test_disk_full.py", "test_effects_guide.py",
     "test_fuzz_recordings.py", "test_readme.py", "test_undetermined.py",
     "test_enospc_injection.py", "test_kill_leftovers.py",  # the real command under strace, dozens of times
+    "test_tiny_runs.py",  # two real commands, 4 s
     "test_independence.py", "test_ir_saturation.py", "test_bag_import.py",  # real recordings, small trials
 }
 SLOW_TESTS = {
