@@ -83,15 +83,18 @@ def scale(t: np.ndarray | None, factor: Any) -> np.ndarray | None:
 
 
 def plus(*terms: np.ndarray | None) -> np.ndarray | None:
-    """The sum of the terms that are not None (None if none is)."""
-    out = None
-    for t in terms:
-        if t is None:
-            continue
-        if out is None:
-            out = t.copy()
-        else:
-            out += t
+    """The sum of the terms that are not None (None if none is; the term itself if it is the only one).
+
+    Tangents are never changed in place (every stage makes new arrays, as this does), so a lone term is returned
+    as it is, not copied (array copies were 1.3 s of a 15 s profile of a blind trial; not all were these)."""
+    present = [t for t in terms if t is not None]
+    if not present:
+        return None
+    if len(present) == 1:
+        return present[0]
+    out = present[0] + present[1]
+    for t in present[2:]:
+        out += t
     return out
 
 
