@@ -25,7 +25,7 @@ _WHERE = {
     "PROTOCOLS": "catalogue", "register_protocol": "catalogue",
     "ProtocolSpec": "protocol_spec", "ProtocolParam": "plan_values", "CaptureSettings": "capture_settings",
     "Plan": "plan", "Capture": "plan", "Configure": "plan", "Home": "plan", "Move": "plan", "Settle": "plan",
-    "Runner": "runner", "RunError": "runner", "RunResult": "runner",
+    "Runner": "runner", "RunError": "run_errors", "RunResult": "runner",
 }
 __all__ = ["perpendicular", "tilted", *_WHERE]
 
@@ -35,7 +35,8 @@ if TYPE_CHECKING:  # for type checkers; at run time __getattr__ imports each nam
     from .plan import Capture, Configure, Home, Move, Plan, Settle
     from .plan_values import ProtocolParam
     from .protocol_spec import ProtocolSpec
-    from .runner import Runner, RunError, RunResult
+    from .run_errors import RunError
+    from .runner import Runner, RunResult
 
 
 def __getattr__(name: str) -> Any:

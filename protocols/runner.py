@@ -22,6 +22,7 @@ from drivers.errors import CameraError, DeviceError
 from drivers.image_regions import center_box
 from drivers.stage import Stage
 
+from .run_errors import PlanRefused, RunError  # noqa: F401  (re-exported: protocols.runner.RunError)
 from .plan import Capture, Configure, Home, Move, Plan, Settle
 from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, is_storage_failure, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
@@ -36,19 +37,6 @@ from .stats import MeanImageAccumulator, PixelMomentAccumulator
 MAX_STALE_FRAMES = 30
 #: fraction of a stop's frames that may be refused for wrong metadata before the run stops
 MAX_REFUSED_FRACTION = 0.05
-
-
-class RunError(RuntimeError):
-    """The run stopped; the message says why, what was saved and how to resume."""
-
-
-class PlanRefused(RunError):
-    """The plan cannot finish on this rig, found before homing or recording (`plan_check`); `problems` holds
-    one line per problem."""
-
-    def __init__(self, message: str, problems: list[str]):
-        super().__init__(message)
-        self.problems = problems
 
 
 @dataclass

@@ -72,8 +72,8 @@ def paper_windows_main(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     from protocols.experiment_file import ExperimentFileError
-    from protocols.recording import RecordingError
-    from protocols.runner import RunError
+    from protocols.recording_errors import RecordingError
+    from protocols.run_errors import RunError
 
     from ..effect_errors import EffectFileError
 

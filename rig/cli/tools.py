@@ -52,14 +52,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of the first scenario (default 0)")
     p.set_defaults(func=cmd_paper_windows)
 
-    from ..simulation.scenarios import ALL_SCENARIOS
-
     p = sub.add_parser("validate-diagnosis", help="blind test of rig diagnose on hidden-effect simulations",
                        description="Does `rig diagnose` find effects nobody told it about? Records hidden-effect "
                                    "scenarios, diagnoses each blind and tabulates the results.")
     p.add_argument("--seeds", type=int, default=10, help="seeds per effect (default 10)")
     p.add_argument("--first-seed", type=int, default=1000)
-    p.add_argument("--effects", default=",".join(ALL_SCENARIOS),
+    # the default is filled in by cmd_validate: the scenarios' module loads the fake camera and numba (0.4 s), which
+    # building the parser for every command must not
+    p.add_argument("--effects", default=None,
                    help="comma-separated scenarios (default: all: none, each catalogue effect, a coarse depth unit, "
                         "pairs, effects the catalogue lacks, frames not independent, IR saturated near the wall)")
     p.add_argument("--jobs", type=int, help="trials at a time, in parallel processes (default: one per core)")
@@ -193,7 +193,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
     from ..simulation.validation import summary, validate
 
     refuse_unwritable(args.json, "--json")
-    effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    from ..simulation.scenarios import ALL_SCENARIOS
+
+    effects = [e.strip() for e in (args.effects or ",".join(ALL_SCENARIOS)).split(",") if e.strip()]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     from ..reports.work_progress import WorkProgressLine
 
