@@ -11,11 +11,11 @@ if str(ROOT) not in sys.path:
 
 import os
 
-# Two workers a core (pytest_xdist_auto_num_workers below): BLAS's own threads would only spin on cores the
-# workers hold, so each process keeps one (tests/test_diagnosis.py: 246 -> 160 s of CPU, 127 -> 85 s of wall on
-# 2 cores). Set before numpy is imported; the workers and the commands the tests start inherit it.
-for _threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_threads, "1")
+# Two workers a core (pytest_xdist_auto_num_workers below): one BLAS thread each (rig/blas_threads.py), set before
+# numpy is imported; the workers and the commands the tests start inherit it.
+from rig.blas_threads import one_blas_thread  # noqa: E402
+
+one_blas_thread()
 
 import pytest
 

@@ -15,12 +15,9 @@ import sys
 import threading
 from typing import TextIO
 
-# rig works in parallel with processes (--jobs), not with BLAS's threads: OpenBLAS's threads spin between the short
-# products a fit makes, and beside a process pool's workers they only take cores from them (`rig diagnose` of the
-# demo's recording: 27 -> 21 s of CPU on 2 cores). One thread unless the environment says otherwise; set here,
-# before anything imports numpy.
-for _threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_threads, "1")
+from ..blas_threads import one_blas_thread
+
+one_blas_thread()  # before anything imports numpy (rig/blas_threads.py says why)
 
 from drivers.errors import DeviceError, FolderImportError
 
