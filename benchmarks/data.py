@@ -90,12 +90,7 @@ def demo_recording(workdir: Path) -> Path:
     depth unit, a disparity noise floor the paper's model lacks): what issue 30's operator waits on."""
     path = workdir / "demo-106x60-unknown.h5"
     if not path.exists():
-        from protocols import Runner, perpendicular
-        from rig.devices import open_devices
-        from rig.simulation.demo import DEMO_NOISE_FLOOR_PX
+        from rig.simulation.demo import record_unknown
 
-        devices = open_devices(f"fake:width=106,height=60,depth_unit_mm=0.05,seed=7,"
-                               f"effects=noise_floor(sigma_px={DEMO_NOISE_FLOOR_PX})", "fake:")
-        Runner(devices.camera, devices.stage, sleep=devices.sleep).run(
-            perpendicular(frames_per_stop=100, projector_on=True, ambient_frames=3), path)
+        record_unknown(path, seed=0)  # the fake camera's seed 7, as the benchmark has used
     return path

@@ -92,6 +92,16 @@ def run_demo(out_dir: Path, *, frames: int = 300, width: int = 424, seed: int = 
 DEMO_NOISE_FLOOR_PX = 0.06
 
 
+def record_unknown(path: Path, *, seed: int, progress=None) -> Path:
+    """The loop's recording: 106x60 px, 11 stops of 100 frames, projector on, a 0.05 mm depth unit, and the
+    camera's noise floor (`DEMO_NOISE_FLOOR_PX`) that the paper's model lacks; the fake camera's seed is seed + 7."""
+    devices = open_devices(f"fake:width=106,height=60,depth_unit_mm=0.05,seed={seed + 7},"
+                           f"effects=noise_floor(sigma_px={DEMO_NOISE_FLOOR_PX})", "fake:")
+    Runner(devices.camera, devices.stage, progress=progress, sleep=devices.sleep).run(
+        perpendicular(frames_per_stop=100, projector_on=True, ambient_frames=3), path)
+    return path
+
+
 def _diagnosis_loop(out_dir: Path, *, seed: int, verbosity: int = 0) -> list[tuple[str, Path]]:
     """Record a camera with a noise floor, diagnose it blind, add the effect it names, show the error fall."""
     print("\nThe loop: a camera whose noise has something the paper's model leaves out.")
@@ -99,10 +109,7 @@ def _diagnosis_loop(out_dir: Path, *, seed: int, verbosity: int = 0) -> list[tup
     path = out_dir / "perpendicular-active-unknown.h5"
     if path.exists():
         path.unlink()
-    devices = open_devices(f"fake:width=106,height=60,depth_unit_mm=0.05,seed={seed + 7},"
-                           f"effects=noise_floor(sigma_px={DEMO_NOISE_FLOOR_PX})", "fake:")
-    Runner(devices.camera, devices.stage, progress=TerminalProgress(sys.stdout, "  "), sleep=devices.sleep).run(
-        perpendicular(frames_per_stop=100, projector_on=True, ambient_frames=3), path)
+    record_unknown(path, seed=seed, progress=TerminalProgress(sys.stdout, "  "))
     with WorkProgressLine("rig demo: diagnosing", verbosity) as progress:
         diag = diagnose(ModelData.from_recording(path), source=str(path), second_round=False, progress=progress)
     pl = diag.power_law_fit
