@@ -138,7 +138,7 @@ def test_perpendicular_run_through_the_sdk_records_and_fits_like_the_fake_camera
 # -- recorded with the SDK's recorder, played back through realsense:file= ----------------------------
 
 def test_recording_made_by_the_sdk_plays_back_with_the_same_per_pixel_statistics(tmp_path):
-    rs = _rs()
+    _rs()  # the SDK must be there (its reader below, `_read_with_sdk`, takes it itself)
     from fakes.stage import FakeStage
     from fakes.world import FakeWorld
 
