@@ -8,7 +8,7 @@ one draw of random numbers and one pass of these kernels.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from drivers.compiled import njit
 
 #: the largest value a uint16 depth image holds; 0 means no data
 MAX_DEPTH_UNITS = 65535
