@@ -61,7 +61,10 @@ def setup() -> None:
     if not STAMP.exists() or STAMP.read_text() != want:
         print("dev.py: installing rig and its dependencies into .venv (first run takes a minute)", flush=True)
         subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--upgrade", "pip"], check=True)
-        subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test,oak]"], check=True)
+        # --no-compile: Python compiles a module's bytecode when it is first imported; pip would compile every file of
+        # scipy, matplotlib, numba ... up front (~25 s of CPU), most of which nothing here ever imports
+        subprocess.run([str(BIN / "python"), "-m", "pip", "install", "--quiet", "--no-compile", "-e", f"{ROOT}[test,oak]"],
+                       check=True)
         STAMP.write_text(want)
 
 
