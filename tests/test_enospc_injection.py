@@ -45,17 +45,18 @@ def _rig(args: list[str], cwd: Path, inject: tuple[str, int] | None = None) -> s
     return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120, env=_env(args))
 
 
-def _calls(args: list[str], cwd: Path, call: str) -> int:
-    """How many times the command makes `call` on a disk with room."""
-    log = cwd / f"{call}.strace"
-    subprocess.run([_strace(), "-f", "-o", str(log), "-e", f"trace={call}", *RIG, *args], cwd=cwd, check=True,
+def _calls(args: list[str], cwd: Path) -> dict[str, int]:
+    """How many times the command makes each of write and pwrite64 on a disk with room (one traced run)."""
+    log = cwd / "calls.strace"
+    subprocess.run([_strace(), "-f", "-o", str(log), "-e", "trace=write,pwrite64", *RIG, *args], cwd=cwd, check=True,
                    capture_output=True, timeout=120, env=_env(args))
-    n = sum(f"{call}(" in line for line in log.read_text().splitlines())
+    lines = log.read_text().splitlines()
+    counts = {call: sum(f"{call}(" in line for line in lines) for call in ("write", "pwrite64")}
     for p in cwd.iterdir():
         if p != log:
             shutil.rmtree(p) if p.is_dir() else p.unlink()
     log.unlink()
-    return n
+    return counts
 
 
 def _complete(path: Path) -> bool:
@@ -75,7 +76,7 @@ def _one_line(p: subprocess.CompletedProcess) -> str:
 def test_a_full_disk_at_every_write_of_a_run_is_one_line_and_resume_finishes_it(tmp_path):
     """Every write and pwrite64 of a small run (HDF5's own writes included: it assembles in memory, and Python
     writes the file; on disk, HDF5 1.14 segfaulted in close() after ENOSPC at one pwrite64 of 69)."""
-    calls = [(call, n) for call in ("write", "pwrite64") for n in range(1, _calls(RUN, tmp_path, call) + 1)]
+    calls = [(call, n) for call, total in _calls(RUN, tmp_path).items() for n in range(1, total + 1)]
     assert len(calls) >= 5
     for inject in calls:
         p = _rig(RUN, tmp_path, inject)
@@ -102,8 +103,8 @@ def test_a_full_disk_at_every_write_of_a_run_is_one_line_and_resume_finishes_it(
 def test_a_full_disk_at_every_write_of_an_import_is_one_line_and_leaves_nothing(tmp_path):
     # every write; of the provenance's pwrite64s (HDF5 writing into the import's temporary file) the first and last
     # (every index: tests/fault_matrix.py)
-    provenance = _calls(IMPORT, tmp_path, "pwrite64")
-    calls = [("write", n) for n in range(1, _calls(IMPORT, tmp_path, "write") + 1)] + [("pwrite64", 1), ("pwrite64", provenance)]
+    total = _calls(IMPORT, tmp_path)
+    calls = [("write", n) for n in range(1, total["write"] + 1)] + [("pwrite64", 1), ("pwrite64", total["pwrite64"])]
     assert len(calls) >= 5
     for inject in calls:
         p = _rig(IMPORT, tmp_path, inject)
