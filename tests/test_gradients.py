@@ -163,3 +163,40 @@ def test_a_users_effect_has_the_likelihoods_gradient_at_every_stage(fine, stage)
         numeric = (8 * (f(h) - f(-h)) - (f(2 * h) - f(-2 * h))) / (12 * h)
         assert g == pytest.approx(numeric, rel=1e-5, abs=1e-5 * np.max(np.abs(grad * [values[m] for m in names]))
                                   / abs(values[n])), (stage, n)
+
+
+def test_the_outlier_rows_chain_rule_against_differences_on_every_branch():
+    """`_outlier_row`'s derivatives in var0, fraction and width against fourth-order differences of its own value,
+    on rows where the mismatches' lower end is -w, the format's end, and (wide mismatches far out) nearly w."""
+    from rig.models.effects import _outlier_row
+
+    rng = np.random.default_rng(11)
+    fb, deepest = 380.0 * 0.05, 65535 * 5e-5  # f b in px m, the deepest range in m (0.05 mm unit)
+    branches = set()
+    for _ in range(300):
+        z = rng.uniform(0.4, 3.25)
+        v0 = (rng.uniform(1e-4, 3e-2) * z) ** 2
+        k40, f, w = rng.uniform(0, 2) * v0 * v0, rng.uniform(0.001, 0.4), rng.uniform(0.05, 20.0)
+        lo = fb / deepest - fb / z
+        branches.add("end" if lo > -w else "-w")
+        x = np.array([v0, f, w])
+        for j, h in enumerate((1e-4 * v0, 1e-5, 1e-5 * w)):
+            def numeric(h, j=j):
+                def at(dx):
+                    y = x.copy()
+                    y[j] += dx * h
+                    return np.array(_outlier_row(z, y[0], k40, y[1], y[2], fb, deepest, 0.0, 0.0, 0.0)[:3])
+                return (8 * (at(1) - at(-1)) - (at(2) - at(-2))) / (12 * h)
+            # the differences' own error: what halving the step changes, plus 1e-6 of each value, because the row
+            # cancels up to ~10 digits (E[Z_o^2] - E[Z_o]^2 for narrow mismatches, m4 r^2 - 3 var^2) and a step of
+            # 1e-4-1e-5 multiplies the rounding by 1e4-1e5; a wrong term in the chain rule is off by its own size
+            n1, n2 = numeric(h), numeric(h / 2)
+            tolerance = 3 * np.abs(n1 - n2) + 1e-6 * np.abs(n1)
+            analytic_d = np.array(_outlier_row(z, v0, k40, f, w, fb, deepest, *np.eye(3)[j])[3:6])
+            assert np.all(np.abs(analytic_d - n2) <= tolerance), (z, v0, f, w, j, analytic_d, n1, n2)
+        # k4 is exactly linear in k40: a step as large as k4 itself shows the slope without rounding
+        k4, slope = np.array(_outlier_row(z, v0, k40, f, w, fb, deepest, 0.0, 0.0, 0.0))[[1, 6]]
+        step = max(abs(k4), v0 * v0)
+        k4_up = _outlier_row(z, v0, k40 + step, f, w, fb, deepest, 0.0, 0.0, 0.0)[1]
+        assert (k4_up - k4) / step == pytest.approx(slope, rel=1e-9)
+    assert branches == {"end", "-w"}

@@ -204,53 +204,69 @@ class Outliers(Effect):
 
 
 @njit(cache=True, nogil=True)
-def _outlier_row(zi, v0, k40, f_all, w, fb, deepest_m):  # pragma: no cover - compiled
+def _outlier_row(zi, v0, k40, f_all, w, fb, deepest_m, dv0, df_all, dw):  # pragma: no cover - compiled
     """Outliers.apply's formulas (its docstring) for one pixel: (variance, fourth cumulant, share of samples
-    kept). Mismatches beyond the deepest range the depth format holds (65535 units) read as no data."""
+    kept), their derivatives along the direction (dv0, df_all, dw) in (var0, fraction, width_px), by the
+    chain rule through each line, and d k4 / d k40 = (1 - f) (var / var_lin)^2 (k40 enters m4_lin linearly,
+    and nothing else). Mismatches beyond the deepest range the depth format holds (65535 units)
+    read as no data."""
     d0 = fb / zi
-    u_lo = min(max(-w, fb / deepest_m - d0), w - 1e-9)
-    span = w - u_lo
-    mean_o = fb * math.log((d0 + w) / (d0 + u_lo)) / span
-    var_o = fb * fb * (1.0 / (d0 + u_lo) - 1.0 / (d0 + w)) / span - mean_o * mean_o
+    a = max(-w, fb / deepest_m - d0)
+    da = -dw if -w >= fb / deepest_m - d0 else 0.0
+    u_lo, du = (a, da) if a < w - 1e-9 else (w - 1e-9, dw)
+    span, dspan = w - u_lo, dw - du
+    log_ratio = math.log((d0 + w) / (d0 + u_lo))
+    dlog = dw / (d0 + w) - du / (d0 + u_lo)
+    mean_o = fb * log_ratio / span
+    dmean_o = fb * (dlog * span - log_ratio * dspan) / (span * span)
+    inv = 1.0 / (d0 + u_lo) - 1.0 / (d0 + w)
+    dinv = -du / (d0 + u_lo) ** 2 + dw / (d0 + w) ** 2
+    e2 = fb * fb * inv / span
+    de2 = fb * fb * (dinv * span - inv * dspan) / (span * span)
+    var_o, dvar_o = e2 - mean_o * mean_o, de2 - 2.0 * mean_o * dmean_o
     kept = span / (2.0 * w)
+    dkept = (dspan * w - span * dw) / (2.0 * w * w)
     kept_all = 1.0 - f_all + f_all * kept
+    dkept_all = df_all * (kept - 1.0) + f_all * dkept
     f = f_all * kept / kept_all
-    w_eff = span / 2.0
+    df = (df_all * kept + f_all * dkept) / kept_all - f * dkept_all / kept_all
+    w_eff, dw_eff = span / 2.0, dspan / 2.0
     m = (1.0 - f) * zi + f * mean_o
+    dm = df * (mean_o - zi) + f * dmean_o
     var = (1.0 - f) * (v0 + (zi - m) ** 2) + f * (var_o + (mean_o - m) ** 2)
-    a2 = (zi * zi / fb) ** 2 * w_eff * w_eff  # disparity_to_range(w_eff^2): (Z^2 / (f b))^2 var_d
+    dvar = (-df * (v0 + (zi - m) ** 2) + (1.0 - f) * (dv0 - 2.0 * (zi - m) * dm)
+            + df * (var_o + (mean_o - m) ** 2) + f * (dvar_o + 2.0 * (mean_o - m) * (dmean_o - dm)))
+    c = (zi * zi / fb) ** 2
+    a2, da2 = c * w_eff * w_eff, 2.0 * c * w_eff * dw_eff  # disparity_to_range(w_eff^2): (Z^2 / (f b))^2 var_d
     m4_lin = (1.0 - f) * (3.0 * v0 * v0 + k40) + f * a2 * a2 / 5.0
+    dm4_lin = -df * (3.0 * v0 * v0 + k40) + (1.0 - f) * 6.0 * v0 * dv0 + df * a2 * a2 / 5.0 + f * 2.0 * a2 * da2 / 5.0
     var_lin = (1.0 - f) * v0 + f * a2 / 3.0
-    return var, m4_lin * (var / var_lin) ** 2 - 3.0 * var * var, kept_all
+    dvar_lin = -df * v0 + (1.0 - f) * dv0 + df * a2 / 3.0 + f * da2 / 3.0
+    r = var / var_lin
+    dr = (dvar - r * dvar_lin) / var_lin
+    k4 = m4_lin * r * r - 3.0 * var * var
+    dk4 = dm4_lin * r * r + 2.0 * m4_lin * r * dr - 6.0 * var * dvar
+    return var, k4, kept_all, dvar, dk4, dkept_all, (1.0 - f) * r * r
 
 
 @njit(cache=True, nogil=True)
 def _outlier_mixture(z, var0, k40, f_all, w, fb, deepest_m, with_partials, partials):  # pragma: no cover - compiled
     """`_outlier_row` pixel by pixel in one pass: (variance, fourth cumulant, share kept). With `with_partials`,
-    fills `partials` (9 x pixels): d (var, k4, kept) / d var0, d fraction, d width by central differences of the
-    row's closed form, and d k4 / d k40 = (1 - f) (var / var_lin)^2 exactly (the cumulant enters linearly)."""
+    fills `partials` (9 x pixels): d (var, k4, kept) / d var0, d fraction, d width and d k4 / d k40, all from the
+    row's own chain rule (`_outlier_row`)."""
     n = z.shape[0]
     var_out, k4_out, kept_out = np.empty(n), np.empty(n), np.empty(n)
     for i in range(n):
         zi, v0, k4i = z[i], var0[i], k40[i]
-        var, k4, kept = _outlier_row(zi, v0, k4i, f_all, w, fb, deepest_m)
+        var, k4, kept, dv, dk, _, dk_k40 = _outlier_row(zi, v0, k4i, f_all, w, fb, deepest_m, 1.0, 0.0, 0.0)
         var_out[i], k4_out[i], kept_out[i] = var, k4, kept
         if not with_partials:
             continue
-        hv = 1e-6 * v0
-        vp, kp, _ = _outlier_row(zi, v0 + hv, k4i, f_all, w, fb, deepest_m)
-        vm, km, _ = _outlier_row(zi, v0 - hv, k4i, f_all, w, fb, deepest_m)
-        partials[0, i], partials[3, i] = (vp - vm) / (2 * hv), (kp - km) / (2 * hv)
-        hf = 1e-7
-        vp, kp, ep = _outlier_row(zi, v0, k4i, f_all + hf, w, fb, deepest_m)
-        vm, km, em = _outlier_row(zi, v0, k4i, f_all - hf, w, fb, deepest_m)
-        partials[1, i], partials[4, i], partials[6, i] = (vp - vm) / (2 * hf), (kp - km) / (2 * hf), (ep - em) / (2 * hf)
-        hw = 1e-6 * w
-        vp, kp, ep = _outlier_row(zi, v0, k4i, f_all, w + hw, fb, deepest_m)
-        vm, km, em = _outlier_row(zi, v0, k4i, f_all, w - hw, fb, deepest_m)
-        partials[2, i], partials[5, i], partials[7, i] = (vp - vm) / (2 * hw), (kp - km) / (2 * hw), (ep - em) / (2 * hw)
-        v1, k1, _ = _outlier_row(zi, v0, k4i + 1.0, f_all, w, fb, deepest_m)
-        partials[8, i] = k1 - k4
+        partials[0, i], partials[3, i], partials[8, i] = dv, dk, dk_k40
+        _, _, _, dv, dk, de, _ = _outlier_row(zi, v0, k4i, f_all, w, fb, deepest_m, 0.0, 1.0, 0.0)
+        partials[1, i], partials[4, i], partials[6, i] = dv, dk, de
+        _, _, _, dv, dk, de, _ = _outlier_row(zi, v0, k4i, f_all, w, fb, deepest_m, 0.0, 0.0, 1.0)
+        partials[2, i], partials[5, i], partials[7, i] = dv, dk, de
     return var_out, k4_out, kept_out
 
 
