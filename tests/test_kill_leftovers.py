@@ -67,7 +67,7 @@ def test_kills_during_a_run_leave_nothing_after_the_resume(tmp_path):
 
 
 def test_a_killed_import_is_cleaned_up_by_the_next_import(tmp_path):
-    total = _calls(IMPORT, tmp_path, "pwrite64")  # the provenance, written into the import's temporary file
+    total = _calls(IMPORT, tmp_path)["pwrite64"]  # the provenance, written into the import's temporary file
     _killed(IMPORT, tmp_path, "pwrite64", total // 2)
     left = sorted(p.name for p in tmp_path.iterdir())
     assert left and all(".importing" in name for name in left), left
