@@ -1,15 +1,13 @@
 """What `rig fit` and `rig diagnose` write besides their printout: outputs checked before the work starts,
-the per-stop table (`fit --table`), and the HTML report's metadata. Real commands on one small recording."""
+the per-stop table (`fit --table`), and the HTML report's metadata. The commands run in this process
+(tests/cli_in_process.py) on one small recording."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_in_process import rig_in_process
 
 from rig.reports.writable import output_problem
-
-RIG = str(Path(sys.executable).parent / "rig")
 
 
 @pytest.fixture
@@ -30,7 +28,7 @@ def test_an_unwritable_output_fails_at_once_in_one_line(recording, tmp_path, arg
     regular = tmp_path / "a-file"
     regular.write_text("not a folder")
     args = [a.replace("{rec}", str(recording)).replace("{file}", str(regular)) for a in args]
-    r = subprocess.run([RIG, "-v", *args], capture_output=True, text=True)
+    r = rig_in_process("-v", *args)
     assert r.returncode == 2
     lines = r.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"rig: error: cannot write {option}"), r.stderr
@@ -52,7 +50,7 @@ def test_fit_table_reads_back_as_the_fit(recording, tmp_path):
     from rig.analysis import fit_recording
 
     table = tmp_path / "tables" / "stops.csv"
-    r = subprocess.run([RIG, "fit", str(recording), "--table", str(table)], capture_output=True, text=True)
+    r = rig_in_process("fit", recording, "--table", table)
     assert r.returncode == 0 and f"table: {table}" in r.stdout
     with open(table, newline="") as f:
         rows = list(csv.DictReader(f))
@@ -66,8 +64,8 @@ def test_fit_table_reads_back_as_the_fit(recording, tmp_path):
         assert float(row["measured_sigma_m"]) == pytest.approx(sigma, rel=1e-12)
         assert float(row["model_sigma_m"]) == pytest.approx(fit.fit.sigma_m(z), rel=2e-3)  # k Z^lambda at the stop
         assert 0.5 < float(row["fill_rate"]) <= 1.0
-    with_model = subprocess.run([RIG, "fit", str(recording), "--model", "active", "--no-held-out", "--json",
-                                 "--table", str(tmp_path / "active.csv")], capture_output=True, text=True)
+    with_model = rig_in_process("fit", recording, "--model", "active", "--no-held-out", "--json", "--table",
+                                tmp_path / "active.csv")
     assert with_model.returncode == 0 and json.loads(with_model.stdout)["fits"][0]["model"] == "active"
     assert "table: " in with_model.stderr  # stdout holds the JSON alone
     with open(tmp_path / "active.csv", newline="") as f:
@@ -80,7 +78,7 @@ def test_fit_table_reads_back_as_the_fit(recording, tmp_path):
 def test_fit_table_to_an_unwritable_place_fails_at_once(recording, tmp_path):
     regular = tmp_path / "a-file"
     regular.write_text("")
-    r = subprocess.run([RIG, "fit", str(recording), "--table", str(regular / "stops.csv")], capture_output=True, text=True)
+    r = rig_in_process("fit", recording, "--table", regular / "stops.csv")
     assert r.returncode == 2 and r.stderr.startswith("rig: error: cannot write --table") and r.stdout == ""
 
 
@@ -111,7 +109,7 @@ def test_the_html_report_carries_the_runs_metadata(recording, tmp_path):
             if self.in_td:
                 self.rows[self.key] = self.rows.get(self.key, "") + data
 
-    r = subprocess.run([RIG, "diagnose", str(recording), "--out", str(tmp_path / "report")], capture_output=True, text=True)
+    r = rig_in_process("diagnose", recording, "--out", tmp_path / "report")
     assert r.returncode == 0, r.stderr
     page = RunRows()
     page.feed((tmp_path / "report" / "diagnosis.html").read_text())

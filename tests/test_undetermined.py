@@ -1,18 +1,14 @@
 """Lambda from fewer than three ranges, or from a span under 1.5 x, is NOT DETERMINED (rig.models.determinacy):
 said with the reason and the fix by fit, compare and diagnose, never called "within noise", exit status 3."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_in_process import rig_in_process as rig
 
 from rig.models import ModelData
 from rig.models.determinacy import lambda_status
 from simrig import record_perpendicular
-
-RIG = str(Path(sys.executable).parent / "rig")
-
 
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory, small_recording) -> dict[str, Path]:
@@ -21,10 +17,6 @@ def recordings(tmp_path_factory, small_recording) -> dict[str, Path]:
     for name, stops in (("one", [1.0]), ("narrow", [1.0, 1.1, 1.2])):
         out[name] = record_perpendicular(folder / f"{name}.h5", width=32, frames=8, stops_m=stops)[0]
     return out
-
-
-def rig(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True)
 
 
 def test_the_rule(recordings, tmp_path):
