@@ -292,6 +292,11 @@ def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelDat
             if not (np.all(np.isfinite(s)) and np.all(np.isfinite(held))):
                 break
             steps = np.minimum(0.2 * held, np.where(room > 0, 0.5 * room, steps))
+    if any(params[n].at_bound(v) for n, v in zip(names, x)):
+        # a maximum on a bound is no stationary point: its curvature (one-sided, from steps squeezed into the room
+        # left, or none when the fit sits exactly on it) is no error, for that parameter or, jointly, the others
+        # (rig.models.error_notes says which and why); decided here, not by whether the differences happen to fail
+        se, cov = np.full(len(names), np.nan), None
     # frames measured not independent hold fewer independent samples: widen by sqrt(n / n_eff) (rig.models.independence)
     grow = error_inflation(d)
     if grow != 1.0:
