@@ -35,8 +35,10 @@ from .shape_statistics import ShapeStatistics
 RANGE_BIN_M = 0.25
 #: rows of the chunks work over every pixel goes in (whole stops; about a full-resolution stop)
 CHUNK_ROWS = 400_000
-#: rows of the pieces the chunks are worked in (arrays that stay in the processor's cache)
-PIECE_ROWS = 65_536
+#: rows of the pieces the chunks are worked in: arrays that stay in the processor's cache, the derivatives'
+#: (parameters x rows) too: 8,192 rows (64 kB an array) made a likelihood's gradient 22-30 % quicker than 65,536
+#: (on the demo's loop recording, 70,000 rows: 52-54 against 67-79 ms with outliers, 30-31 against 38-39 without)
+PIECE_ROWS = 8_192
 
 
 @dataclass(frozen=True)
