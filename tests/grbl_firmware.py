@@ -23,9 +23,12 @@ What the firmware does on a host (2 AMD EPYC cores; "sim time" is grbl-sim's 16 
 - Stock grbl-sim busy-waits: its hardware thread runs every 16 MHz tick and polls stdin every 66 ticks with four
   system calls, one core at 100 % however idle GRBL is, and it falls behind real time when the host is busy:
   0.56-0.66x with two busy processes on the 2 cores (GRBL's moves then take up to 1.8x as long as planned).
-  GRBL's own thread spins in every wait (12 % of a core idle, 100 % in a feed hold). Patched (`sim-sleep`,
-  `poll-stdin-cheaply`, `grbl-thread-sleep`): 0.06 cores idle, ~0.2 moving or homing, 0.05 in a hold, and sim
-  time within 0.1 % of real time, loaded or not (tests/vendor/grbl/README.md has the table).
+  GRBL's own thread spins in every wait (12 % of a core idle, 100 % in a feed hold, and for the whole first
+  second of a fresh start, its settings dump waiting for the serial port). Patched (`sim-sleep`,
+  `poll-stdin-cheaply`, `grbl-thread-sleep`): 0.06 cores idle, ~0.08 moving or homing, 0.05 in a hold, 0.1 s of
+  CPU for a fresh start, and sim time within 0.1 % of real time, loaded or not (tests/vendor/grbl/README.md
+  has the table). The simulator runs its ticks in batches of up to 1 ms of sim time (an incoming byte or a
+  reply GRBL queues ends a batch at once), so GRBL's main program sees steps and switches land in such batches.
 - grbl-sim runs GRBL's main program and its interrupts in two threads. Stock, they shared SREG, and one could
   write back the other's cleared I bit: interrupts off for good, a move frozen in Run while the reports still
   came (~1 move in 70 with a '?' every 20 ms, within seconds under a '?' flood); and GRBL's serial rings, as
@@ -174,23 +177,41 @@ PATCHES: tuple[Patch, ...] = (
     Patch(
         "sim-sleep: declare", "grbl-sim/simulator.c",
         "//runs the hardware simulator at the desired rate until sim.exit is set\n",
-        "int rig_hw_idle(void); // rig patch (rig_hw.c)\n"
+        "void rig_hw_catch_up(uint64_t until); // rig patch (rig_hw.c)\n"
         "void rig_hw_skip(uint64_t until, uint64_t *next_byte_tick);\n"
-        "void rig_hw_wait_input(long microseconds);\n\n"
+        "void rig_hw_sleep(uint64_t next_byte_tick);\n\n"
         "//runs the hardware simulator at the desired rate until sim.exit is set\n",
     ),
     Patch(
         "sim-sleep: skip uneventful ticks", "grbl-sim/simulator.c",
         "   while (sim.masterclock < simulated_ticks){\n",
+        "   rig_hw_catch_up(simulated_ticks); // rig patch: no poll of stdin while it is known to be empty\n"
         "   while (sim.masterclock < simulated_ticks){\n"
         "    // rig patch: skip the ticks in which no interrupt can fire and the serial port has nothing to do\n"
         "    rig_hw_skip(simulated_ticks, &next_byte_tick);\n",
     ),
     Patch(
-        "sim-sleep: sleep when idle", "grbl-sim/simulator.c",
+        "sim-sleep: sleep until something must happen", "grbl-sim/simulator.c",
         "   platform_sleep(0); //yield\n",
-        "   // rig patch: when idle, sleep until a byte arrives (at most 1 ms) instead of spinning\n"
-        "   if (rig_hw_idle()) { rig_hw_wait_input(1000); } else { platform_sleep(0); } //yield\n",
+        "   // rig patch: instead of yielding (~16000 wake-ups a second while moving), sleep until a byte arrives on\n"
+        "   // stdin, GRBL queues one to send, or 1 ms has passed; the ticks meanwhile are then run at once\n"
+        "   rig_hw_sleep(next_byte_tick);\n",
+    ),
+    Patch(
+        "sim-sleep: wait for room to send", "serial.c",
+        "    if (sys_rt_exec_state & EXEC_RESET) { return; } // Only check for abort to avoid an endless loop.\n",
+        "    if (sys_rt_exec_state & EXEC_RESET) { return; } // Only check for abort to avoid an endless loop.\n"
+        "    { void platform_sleep(long microsec); platform_sleep(200); } // rig patch: the TX ring is full; sleep\n"
+        "    // instead of spinning a core (for the whole first second of a fresh start, whose settings dump fills it\n"
+        "    // while grbl-sim sends nothing yet)\n",
+    ),
+    Patch(
+        "sim-sleep: wake on output", "serial.c",
+        "  // Enable Data Register Empty Interrupt to make sure tx-streaming is running\n"
+        "  UCSR0B |=  (1 << UDRIE0);\n",
+        "  // Enable Data Register Empty Interrupt to make sure tx-streaming is running\n"
+        "  UCSR0B |=  (1 << UDRIE0);\n"
+        "  { void rig_tx_kick(void); rig_tx_kick(); } // rig patch: wake the simulator if it sleeps (rig_hw.c)\n",
     ),
     Patch(
         "grbl-thread-sleep: realtime loop", "protocol.c",
@@ -214,8 +235,9 @@ PATCHES: tuple[Patch, ...] = (
     Patch(
         "grbl-thread-sleep: homing loop", "limits.c",
         "      st_prep_buffer(); // Check and prep segment buffer. NOTE: Should take no longer than 200us.\n",
-        "      { void platform_sleep(long microsec); platform_sleep(20); } // rig patch: poll the switches every\n"
-        "      // ~70 us (the sleep's slack included) instead of spinning a core\n"
+        "      { void platform_sleep(long microsec); platform_sleep(200); } // rig patch: poll the switches every\n"
+        "      // ~250 us (the sleep's slack included) instead of spinning a core; the simulator moves the carriage in\n"
+        "      // batches of up to 1 ms (rig_hw_sleep), so polling faster would see nothing new\n"
         "      st_prep_buffer(); // Check and prep segment buffer. NOTE: Should take no longer than 200us.\n",
     ),
     Patch(
@@ -392,9 +414,17 @@ RIG_HW_C = r"""/*
   value or overflowing, on a timer with a vector), the serial port has work (a byte to send at the baud tick, a
   poll of stdin due) or the carriage file is due; it advances the prescaler and those timers' counters by as much.
   Timers with no interrupt enabled (Timer1 while the stepper is idle, Timer2 for the spindle PWM) are left frozen.
-  When nothing at all can happen (rig_hw_idle), the simulator sleeps in select() on stdin for up to 1 ms.
+  Between batches of ticks the simulator sleeps (rig_hw_sleep) in select() until a byte arrives on stdin, GRBL's
+  main program queues a byte to send (rig_tx_kick, from serial_write), or 1 ms has passed, whether the stepper
+  runs or not, then runs the ticks of the time slept at once (catching up with real time, as before). Nothing
+  else outside the simulator's thread waits on its ticks: the main program sees the steps, the carriage file
+  and the switches of up to 1 ms of sim time land together (an incoming byte ends the sleep, so a `?` is
+  answered with the position at the time it came). When select() said stdin was empty, the ticks it slept over
+  poll stdin no more (rig_hw_catch_up); when it said a byte is there, the byte is read at the last of them, the
+  tick of its arrival.
 */
 
+#define _GNU_SOURCE  // pipe2
 #include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -408,6 +438,10 @@ RIG_HW_C = r"""/*
 
 uint64_t rig_next_poll = 0;  // no poll of stdin before this tick (platform_LINUX.c)
 volatile uint8_t rig_isr_active = 0;  // an interrupt raised here is running (protocol.c waits)
+static int rig_sleeping = 0;  // the simulator's thread is (about to be) in select(): rig_tx_kick() wakes it
+static int kick_fd[2] = {-1, -1};  // the pipe rig_tx_kick() writes to
+enum { STDIN_UNKNOWN, STDIN_EMPTY, STDIN_READY };
+static int stdin_seen = STDIN_UNKNOWN;  // what the last select() said of stdin
 extern uint8_t serial_tx_buffer_head;
 extern volatile uint8_t serial_tx_buffer_tail;
 extern uint8_t serial_rx_buffer_head;
@@ -459,6 +493,7 @@ void rig_hw_init(void) {
   limit_change_pending = 0;
   carriage_fd = open("CARRIAGE.TXT", O_WRONLY | O_CREAT | O_TRUNC, 0644);
   write_carriage();
+  if (pipe2(kick_fd, O_NONBLOCK | O_CLOEXEC) != 0) { perror("rig_hw: pipe"); exit(2); }
 }
 
 static int stepper_stopped(void) { return !(TIMSK1 & (1 << OCIE1A)) && !(TCCR0B & 7); }
@@ -495,7 +530,7 @@ static int timer_has_vector(int i) {
 }
 
 // no interrupt can fire, nothing is being sent, the carriage file is up to date: ticks change nothing
-int rig_hw_idle(void) {
+static int rig_hw_idle(void) {
   for (int i = 0; i < SIM_N_TIMERS; i++) {
     if (sim_scaling[io.tccrb[i] & 7] && timer_has_vector(i)) { return 0; }
   }
@@ -563,18 +598,65 @@ void rig_hw_skip(uint64_t until, uint64_t *next_byte_tick) {
   sim.masterclock = last;
 }
 
-void rig_hw_wait_input(long microseconds) {
-  static int eof = 0;
-  fd_set readable;
-  struct timeval timeout = {0, microseconds};
-  if (eof || feof(stdin)) {  // nothing more will come: just sleep
-    eof = 1;
-    platform_sleep(microseconds);
-    return;
+static int rx_full(void) {
+  uint8_t next = serial_rx_buffer_head + 1;
+  if (next == RX_BUFFER_SIZE) { next = 0; }
+  return next == serial_rx_buffer_tail;
+}
+
+// GRBL's main program queued a byte to send (serial_write): wake the simulator's thread if it sleeps. With the
+// fences, either that thread sees the byte before it sleeps or this one sees it sleeping (and writes the pipe).
+void rig_tx_kick(void) {
+  __atomic_thread_fence(__ATOMIC_SEQ_CST);
+  if (__atomic_load_n(&rig_sleeping, __ATOMIC_RELAXED) && __atomic_exchange_n(&rig_sleeping, 0, __ATOMIC_SEQ_CST)) {
+    char byte = 1;
+    if (write(kick_fd[1], &byte, 1) < 0) { /* the pipe is full: a wake-up is pending anyway */ }
   }
+}
+
+// The ticks up to `until` are about to run: no poll of stdin in them when select() found it empty since (a byte
+// that comes meanwhile ends the next sleep at once); a byte it found is read at the last of them, when it came.
+void rig_hw_catch_up(uint64_t until) {
+  if (stdin_seen == STDIN_EMPTY) {
+    if (rig_next_poll < until) { rig_next_poll = until; }
+  } else if (stdin_seen == STDIN_READY) {
+    rig_next_poll = until > sim.masterclock + 1 ? until - 1 : sim.masterclock;
+  }
+  stdin_seen = STDIN_UNKNOWN;
+}
+
+#define RIG_SLEEP_MAX_US 1000
+// Sleep until a byte comes on stdin, GRBL queues one to send, or RIG_SLEEP_MAX_US have passed. The simulator
+// has caught up with real time; whatever the ticks of the sleep hold (steps, the carriage file) runs after it.
+void rig_hw_sleep(uint64_t next_byte_tick) {
+  static int eof = 0;
+  if (limit_change_pending) { platform_sleep(0); return; }  // the limit interrupt waits for GRBL's sei(): soon
+  long sleep_us = RIG_SLEEP_MAX_US;
+  __atomic_store_n(&rig_sleeping, 1, __ATOMIC_SEQ_CST);
+  __atomic_thread_fence(__ATOMIC_SEQ_CST);
+  if (!tx_empty()) {  // a byte to send: sleep until its baud tick (no output in the first second of sim time)
+    __atomic_store_n(&rig_sleeping, 0, __ATOMIC_SEQ_CST);
+    uint64_t wait = next_byte_tick > sim.masterclock ? next_byte_tick - sim.masterclock : 0;
+    if (wait < F_CPU / 20000) { return; }  // due within 50 us: run the ticks to it now
+    if (wait < (uint64_t)RIG_SLEEP_MAX_US * (F_CPU / 1000000)) { sleep_us = wait / (F_CPU / 1000000); }
+  }
+  if (!eof && feof(stdin)) { eof = 1; }  // nothing more will come: stdin would always be readable
+  // watch stdin only when a byte there would be read soon (not in the first second, not with GRBL's RX ring full)
+  int watch = !eof && !rx_full() && next_byte_tick <= sim.masterclock + F_CPU / 1000;
+  fd_set readable;
+  struct timeval timeout = {0, sleep_us};
   FD_ZERO(&readable);
-  FD_SET(STDIN_FILENO, &readable);
-  select(STDIN_FILENO + 1, &readable, NULL, NULL, &timeout);
+  FD_SET(kick_fd[0], &readable);
+  if (watch) { FD_SET(STDIN_FILENO, &readable); }
+  int n = select((kick_fd[0] > STDIN_FILENO ? kick_fd[0] : STDIN_FILENO) + 1, &readable, NULL, NULL, &timeout);
+  __atomic_store_n(&rig_sleeping, 0, __ATOMIC_SEQ_CST);
+  if (n < 0) { FD_ZERO(&readable); }  // EINTR
+  if (FD_ISSET(kick_fd[0], &readable)) {
+    char drain[64];
+    while (read(kick_fd[0], drain, sizeof drain) > 0) {}
+  }
+  if (watch) { stdin_seen = FD_ISSET(STDIN_FILENO, &readable) ? STDIN_READY : STDIN_EMPTY; }
+  if (n < 0) { stdin_seen = STDIN_UNKNOWN; }
 }
 """
 

@@ -339,15 +339,23 @@ def test_query_talks_to_the_firmware_outside_the_clients_port(stock):
     assert (later - seconds) / (time.monotonic() - t0) == pytest.approx(1.0, abs=0.1)
 
 
-#: a main program that loses its core for 150 ms on every 400th segment prep of a move or a homing cycle (every
-#: 30-100 ms), as a loaded host's scheduler may do to it: what the segment-underrun patch is for
+#: a main program that loses its core for 150 ms after every 60 ms of a move or a homing cycle, as a loaded host's
+#: scheduler may do to it: what the segment-underrun patch is for. Timed by the clock, not by counting segment
+#: preps (every 400th, before): how often GRBL's loop preps depends on how the simulator sleeps, and once it slept
+#: between its batches of ticks a 1 s move sometimes saw no stall that starved it
 STALLED_MAIN = grbl_firmware.Patch(
     "test: stalled main program", "stepper.c",
     "void st_prep_buffer()\n{\n",
+    "#include <time.h>\n"
     "void platform_sleep(long microsec);\n"
     "void st_prep_buffer()\n{\n"
-    "  { static int calls = 0;\n"
-    "    if ((sys.state & (STATE_CYCLE | STATE_HOMING)) && ++calls % 400 == 0) { platform_sleep(150000); } }\n",
+    "  { static struct timespec last = {0, 0};\n"
+    "    struct timespec now;\n"
+    "    clock_gettime(CLOCK_MONOTONIC, &now);\n"
+    "    long ms = (now.tv_sec - last.tv_sec) * 1000L + (now.tv_nsec - last.tv_nsec) / 1000000L;\n"
+    "    if ((sys.state & (STATE_CYCLE | STATE_HOMING)) && ms >= 60) {\n"
+    "      platform_sleep(150000);\n"
+    "      clock_gettime(CLOCK_MONOTONIC, &last); } }\n",
 )
 
 
@@ -387,7 +395,7 @@ def test_a_main_program_that_loses_its_core_mid_move_never_reports_idle_short_of
     """CI on a loaded 2-core machine saw a move end Idle at MPos 9.868 for 10.000 and a homing pull-off go the
     wrong way: grbl-sim's simulator thread, catching up with real time, ran the step segments faster than the
     descheduled main program could prep them, the buffer ran dry mid-move and GRBL ended the cycle there. Stall
-    the main program on purpose (150 ms, 40 times a move): without the segment-underrun patch the first Idle
+    the main program on purpose (150 ms after every 60 ms of the move): without the segment-underrun patch the first Idle
     report comes short of 20 mm; with it, the simulated time waits for the main program, as the AVR's would."""
     report, reports = _first_idle(_stalled_firmware(fixed), tmp_path)
     if fixed:
