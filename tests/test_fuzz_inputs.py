@@ -66,10 +66,10 @@ class _Quiet:
         while not self.stop.is_set():
             try:
                 data = os.read(self.master, 1024)
-            except OSError:
+                if data:
+                    os.write(self.master, self.reply)
+            except OSError:  # close() ran meanwhile: the descriptor is gone (EBADF) or the terminal hung up (EIO)
                 return
-            if data:
-                os.write(self.master, self.reply)
 
     def close(self) -> None:
         self.stop.set()
