@@ -11,7 +11,7 @@ if str(ROOT) not in sys.path:
 
 import os
 
-# Two workers a core (pytest_xdist_auto_num_workers below): one BLAS thread each (rig/blas_threads.py), set before
+# One worker a core (pytest_xdist_auto_num_workers below): one BLAS thread each (rig/blas_threads.py), set before
 # numpy is imported; the workers and the commands the tests start inherit it.
 from rig.blas_threads import one_blas_thread  # noqa: E402
 
@@ -102,12 +102,16 @@ def pytest_collection_modifyitems(config, items):
 
 
 def pytest_xdist_auto_num_workers(config):
-    """`-n auto`: two workers a core. The serial-stage tests run GRBL and Zaber controllers in real time and
-    mostly wait (82 s of wall time for 6 s of CPU in tests/test_grbl_protocol.py); with one worker a core a
-    waiting test holds a core idle. Measured on 2 cores: 6 min 4 s with 2 workers, 5 min 23 s with 4."""
+    """`-n auto`: one worker a core. Two a core finished sooner (the serial-stage tests run GRBL and Zaber
+    controllers in real time and mostly wait: 5 min 23 s against 6 min 4 s, measured on 2 cores in 2026-11), but
+    every CPU-bound test then shares its core and its caches with another and takes more CPU to do the same work:
+    tests/test_diagnosis.py + tests/test_recovery.py took 191-210 s of the machine's CPU with 4 workers and 166-183 s
+    with 2, and the whole `.ci/run` from a fresh clone 1,003 s with 4 and 898 s with 2 (2026-11-26, the same
+    commit back to back; 10 min 16 s and 13 min 0 s of wall time). The suite is held to a CPU budget (10 min),
+    not to its wall time (20 min), so one worker a core."""
     import os
 
-    return 2 * (os.cpu_count() or 1)
+    return os.cpu_count() or 1
 
 
 @pytest.fixture(scope="session")
