@@ -133,22 +133,3 @@ def test_a_deleted_stop_is_said(good, tmp_path):
         del f["stops"][_stops(f)[4]]
     code, fit, _ = fit_json(bad)
     assert code == 0 and any("10 of 11 planned stops" in n for n in fit["notes"]), fit
-
-
-#: a recording with 8 bytes flipped (test_flipped_bytes found it on 2026-11-26: the positions it flips hit another
-#: structure each run, because the recording's bytes hold the time it was made): HDF5 crashes reading one of its
-#: stops' attributes (SIGSEGV in protocols/recording.py attr_json -> h5py attrs.get), which no Python code can catch
-SEGFAULT_FILE = Path(__file__).parent / "damaged" / "eight-flipped-bytes-segfault.h5"
-
-
-@pytest.mark.xfail(strict=True, reason="HDF5 segfaults (SIGSEGV, exit -11) reading this damaged file's stop attributes; "
-                                       "found 2026-11-26, not yet fixed")
-def test_a_file_that_crashes_hdf5_is_one_line_not_a_segfault():
-    import subprocess
-    import sys
-
-    r = subprocess.run([str(Path(sys.executable).parent / "rig"), "fit", str(SEGFAULT_FILE)], capture_output=True,
-                       text=True, timeout=120)
-    assert r.returncode in (0, 2, 3), f"exit {r.returncode}: {r.stderr[-500:]}"
-    if r.returncode == 2:
-        assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("rig: error: ")
