@@ -62,13 +62,16 @@ class Client:
         return self.until(r"^<.*>$")[-1]
 
     def wait_idle(self, timeout_s: float = 10.0) -> str:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            report = self.status()
-            if report.startswith("<Idle"):
-                return report
-            time.sleep(0.05)
-        raise AssertionError(f"not Idle after {timeout_s} s: {report}")
+        """The status once the queued motion has ended. Not the first `<Idle` seen: GRBL starts a queued
+        move only when its main loop next finds the serial buffer empty (grbl/protocol.c:154-157), and a
+        `?` that arrives before then is answered Idle with the old position in the same pass
+        (protocol.c:250-253: the status before the cycle start). `G4 P0` is the firmware's own sync point: mc_dwell
+        waits in protocol_buffer_synchronize until the planner is empty and the cycle over
+        (motion_control.c:195-199, protocol.c:169-176) before its `ok`."""
+        assert self.command("G4 P0", timeout_s)[-1] == "ok"
+        report = self.status()
+        assert report.startswith("<Idle"), report
+        return report
 
     def close(self) -> None:
         self.ser.close()
@@ -176,6 +179,16 @@ def test_no_switch_reads_triggered_in_the_middle_of_the_rail(client, stock):
     report = client.status()
     assert report.startswith("<Idle|MPos:0.000,0.000,0.000|") and "Pn:" not in report
     assert stock.physical_x_mm() == pytest.approx(100.0)
+
+
+def test_a_status_asked_with_the_move_is_idle_where_it_was_and_g4_p0_waits_for_the_move(client, stock):
+    """Why wait_idle syncs with G4 P0: a `?` that reaches GRBL with the line is answered before the
+    queued move starts, Idle at the old position; the move then runs."""
+    client.send("G90 G1 X1 F500\n?")
+    lines = client.until(r"^(ok|error:\d+)$")
+    assert lines[-1] == "ok" and lines[0].startswith("<Idle|MPos:0.000,0.000,0.000|"), lines
+    assert mpos_x(client.wait_idle()) == 1.0 and stock.physical_x_mm() == pytest.approx(101.0)
+    assert client.command("G1 X0")[-1] == "ok" and mpos_x(client.wait_idle()) == 0.0
 
 
 @pytest.mark.parametrize("kind, expect", [
