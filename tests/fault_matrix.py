@@ -12,6 +12,7 @@ command again) finished with exactly the recording in the folder. Outcomes are g
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -25,6 +26,8 @@ RUN = ["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9
        "-o", "run.h5", "--stops", "0.5:1.5:0.5", "--frames", "5", "-q"]
 BAG = ROOT / "tests" / "vendor" / "real" / "realsense" / "single_depth_color_640x480.bag"
 IMPORT = ["import", str(BAG), "-o", "d.h5", "--distance-m", "1.6", "-q"]
+#: no bytecode written by the traced command: the N-th write is then its own, whatever Python's cache holds
+ENV = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
 COMMANDS = {"rig run": (RUN, "run.h5"), "rig import": (IMPORT, "d.h5")}
 FAULTS = {"ENOSPC": "error=ENOSPC", "SIGKILL": "signal=KILL"}
 
@@ -33,7 +36,7 @@ def count(args: list[str], call: str) -> int:
     with tempfile.TemporaryDirectory() as d:
         log = Path(d) / "log"
         subprocess.run(["strace", "-f", "-o", str(log), "-e", f"trace={call}", *RIG, *args], cwd=d, check=True,
-                       capture_output=True)
+                       capture_output=True, env=ENV)
         return sum(f"{call}(" in line for line in log.read_text().splitlines())
 
 
@@ -49,7 +52,8 @@ def trial(args: list[str], out: str, call: str, fault: str, n: int) -> tuple[str
     with tempfile.TemporaryDirectory() as d:
         cwd = Path(d)
         p = subprocess.run(["strace", "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e",
-                            f"inject={call}:{FAULTS[fault]}:when={n}", *RIG, *args], cwd=cwd, capture_output=True, text=True)
+                            f"inject={call}:{FAULTS[fault]}:when={n}", *RIG, *args], cwd=cwd, capture_output=True, text=True,
+                           env=ENV)
         lines = p.stderr.strip().splitlines()
         if p.returncode == 0:
             first = "finished (the fault hit no write that mattered)"

@@ -8,6 +8,7 @@ synchronously copy object ... errno = 28`) at every pwrite64 of the final assemb
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -32,9 +33,11 @@ def _strace() -> str:
     return path
 
 
-def _env(args: list[str]) -> dict[str, str] | None:
-    """A tiny fake run goes without numba's compiler (tests/tiny_runs.py); an import reads a real 640x480 bag."""
-    return tiny_run_env() if args[0] == "run" else None
+def _env(args: list[str]) -> dict[str, str]:
+    """A tiny fake run goes without numba's compiler (tests/tiny_runs.py); an import reads a real 640x480 bag.
+    Neither writes bytecode: the N-th write must be the command's own whatever the cache holds (a counting run
+    that first imported rosbags wrote ~250 .pyc files, and the test then faulted each of those writes)."""
+    return {**(tiny_run_env() if args[0] == "run" else os.environ), "PYTHONDONTWRITEBYTECODE": "1"}
 
 
 def _rig(args: list[str], cwd: Path, inject: tuple[str, int] | None = None) -> subprocess.CompletedProcess:
