@@ -11,6 +11,7 @@ Textual validator, so the form's rules stay in one place (`form.field_problem`, 
 
 from __future__ import annotations
 
+import re
 from typing import Callable
 
 from textual.message import Message
@@ -30,6 +31,16 @@ class RuleCheck(Validator):
         return self.success() if text is None else self.failure(text)
 
 
+#: what a number field accepts while it is typed: the language of Textual's own `type="integer"` and `"number"` patterns
+#: (textual/widgets/_input.py, _RESTRICT_TYPES), written without a quantifier nested in a quantifier. Textual's
+#: `(?:\d*|\d+_)*` backtracks exponentially when a run of digits is followed by a character it refuses: 24 digits
+#: then a letter kept an integer field busy 2.7 s, 20 digits a number field 25 s, and 40 froze the app (found by
+#: pasting quickly in tests/test_tui_operator.py). These possessive patterns take microseconds for 10,000 digits;
+#: tests/test_tui_fields.py checks they accept exactly the strings Textual's accept.
+I = r"(?:\d++_)*+\d*+"
+NUMERIC_SHAPES = {"integer": rf"[-+]?{I}", "number": rf"[-+]?{I}(?:\.{I})?+(?:(?<=\d)(?:[eE][-+]?|[-+]){I})?+"}
+
+
 class CheckedField(Input):
     """An input whose refused characters are shown, not only rung on the bell."""
 
@@ -40,13 +51,25 @@ class CheckedField(Input):
             super().__init__()
             self.field = field
 
-    def __init__(self, *args, **kw) -> None:
-        super().__init__(*args, **kw)
+    def __init__(self, *args, type: str = "text", validators=None, **kw) -> None:
+        # a number field is a text field with NUMERIC_SHAPES' pattern, and Textual's validator when no other is given
+        self.kind, self._shape = type, NUMERIC_SHAPES.get(type)
+        if self._shape is not None and not validators:
+            from textual.validation import Integer, Number
+
+            validators = [Integer() if type == "integer" else Number()]
+        super().__init__(*args, type="text" if self._shape else type, validators=validators, **kw)
         self.refused: list[str] = []  # what was refused (typed characters, pasted text) since the field was emptied
         self._typing = ""
 
     def replace(self, text: str, start: int, end: int) -> None:
         before = self.value
+        if self._shape is not None:  # checked here, as Input.replace checks its own type's pattern
+            lo, hi = sorted((max(0, start), min(len(before), end)))
+            if re.fullmatch(self._shape, f"{before[:lo]}{text}{before[hi:]}") is None:
+                self._typing = text
+                self.restricted()
+                return
         whole = bool(before) and start <= 0 and end >= len(before)  # all the text selected and typed over
         self._typing = text
         super().replace(text, start, end)
