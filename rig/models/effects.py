@@ -203,7 +203,7 @@ class Outliers(Effect):
         self.apply(pred, p, d, t)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _outlier_row(zi, v0, k40, f_all, w, fb, deepest_m, dv0, df_all, dw):  # pragma: no cover - compiled
     """Outliers.apply's formulas (its docstring) for one pixel: (variance, fourth cumulant, share of samples
     kept), their derivatives along the direction (dv0, df_all, dw) in (var0, fraction, width_px), by the

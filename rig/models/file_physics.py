@@ -65,7 +65,7 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
     t.var, t.k4 = new_var, new_k4
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _near(z, base_var, c, censored, fb, z_max, nodes, weights, w_at, z_at, dw_at, dz_at, derivatives, out, sums):  # pragma: no cover - compiled
     """(variance, fourth cumulant, fill) of one row near the format's end: Gauss-Legendre quadrature of
     Z = f b / (d0 + sigma_d x) over the normal x on [max(a, -c), min(c, 8)] (c the censoring cut, 8 without),
