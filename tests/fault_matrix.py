@@ -15,17 +15,12 @@ import argparse
 import os
 import shutil
 import subprocess
-import sys
 import tempfile
 from collections import defaultdict
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RIG = [str(Path(sys.executable).parent / "rig")]
-RUN = ["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9,seed=1", "--stage", "fake:",
-       "-o", "run.h5", "--stops", "0.5:1.5:0.5", "--frames", "5", "-q"]
-BAG = ROOT / "tests" / "vendor" / "real" / "realsense" / "single_depth_color_640x480.bag"
-IMPORT = ["import", str(BAG), "-o", "d.h5", "--distance-m", "1.6", "-q"]
+from test_enospc_injection import IMPORT, RIG, RUN  # the commands the ENOSPC and kill tests fault, the same here
+
 #: no bytecode written by the traced command: the N-th write is then its own, whatever Python's cache holds
 ENV = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
 COMMANDS = {"rig run": (RUN, "run.h5"), "rig import": (IMPORT, "d.h5")}

@@ -54,7 +54,7 @@ class CheckedField(Input):
 
     def __init__(self, *args, type: str = "text", validators=None, **kw) -> None:
         # a number field is a text field with NUMERIC_SHAPES' pattern, and Textual's validator when no other is given
-        self.kind, self._shape = type, NUMERIC_SHAPES.get(type)
+        self._shape = NUMERIC_SHAPES.get(type)
         if self._shape is not None and not validators:
             from textual.validation import Integer, Number
 
@@ -65,14 +65,13 @@ class CheckedField(Input):
 
     def replace(self, text: str, start: int, end: int) -> None:
         before = self.value
+        self._typing = text
         if self._shape is not None:  # checked here, as Input.replace checks its own type's pattern
             lo, hi = sorted((max(0, start), min(len(before), end)))
             if re.fullmatch(self._shape, f"{before[:lo]}{text}{before[hi:]}") is None:
-                self._typing = text
                 self.restricted()
                 return
         whole = bool(before) and start <= 0 and end >= len(before)  # all the text selected and typed over
-        self._typing = text
         super().replace(text, start, end)
         if self.refused and ((not text and not self.value) or (whole and text and self.value != before)):
             self.refused = []
