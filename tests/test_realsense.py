@@ -483,7 +483,10 @@ def test_a_recording_made_with_auto_exposure_plays_back_as_it_was_made_with_a_no
 
     assert CAMERA_DEFAULTS.auto_exposure  # the SDK device starts as a camera out of the box: auto-exposure on
     bag = tmp_path / "auto.db3"
-    sw = _software(FakeWorld.perpendicular(1.2), initial=PLAN)
+    # the device starts with auto-exposure on, so every recorded frame has it: started with the plan's settings, the
+    # frames pushed before configure() below were recorded with them (a loaded machine: 0.1 s between open and
+    # configure), and the file then begins exactly as the plan asks (a full-suite run failed on that)
+    sw = _software(FakeWorld.perpendicular(1.2))
     with sw:
         with sw.camera(width=W, height=H, record=bag) as cam:
             cam.configure(CAMERA_DEFAULTS)
@@ -516,3 +519,44 @@ def test_a_recording_made_with_auto_exposure_plays_back_as_it_was_made_with_a_no
     assert "auto-exposure on (asked off)" in note, note
     assert f"exposure per frame {exposure.min():g}-{exposure.max():g} us" in note, note
     assert note in fit_recording(tmp_path / "played.h5").notes
+
+
+def test_a_recordings_settings_are_those_its_frames_report_not_the_playbacks_option_snapshot(tmp_path):
+    """Played back, the SDK's options are a snapshot taken near the start of the recording, on the SDK's thread; they
+    can differ from what the frames were exposed with (seen: auto-exposure switched on as the recording began read
+    back as off while its first frame had it on, 1 of 12 recordings). Here the frames report auto-exposure on and
+    their own exposure while the options say off, deterministically: the run takes the frames' word."""
+    from fakes.world import FakeWorld
+
+    bag = tmp_path / "told.db3"
+    sw = _software(FakeWorld.perpendicular(1.2), initial=PLAN, report={"auto_exposure": True, "exposure_us": 12000.0})
+    with sw:
+        with sw.camera(width=W, height=H, record=bag) as cam:
+            list(cam.frames(30))
+    devices = open_devices(f"realsense:file={bag}", "none:")
+    messages = []
+    Runner(devices.camera, devices.stage, sleep=lambda s: None,
+           progress=lambda e: messages.append(e.text)).run(perpendicular(stops_m=[1.2], frames_per_stop=20),
+                                                         tmp_path / "played.h5")
+    said = [m for m in messages if "plays back a recording" in m]
+    assert said and "auto-exposure on (asked off)" in said[0], messages
+    with Recording(tmp_path / "played.h5") as rec:
+        (stop,) = list(rec.stops())
+        assert stop.settings_read_back["auto_exposure"] is True
+        assert stop.settings_read_back["exposure_us"] == 12000.0
+        assert set(stop.series.exposure_us.tolist()) == {12000.0}
+
+
+def test_the_real_d435_recording_reads_back_the_exposure_its_first_frame_had():
+    """The real D435 bag (tests/vendor/real/realsense, recorded by Intel): auto-exposure on; the playback's options say
+    exposure 8500 us (the manual value, unused under auto-exposure), its first depth frame's metadata 6452 us."""
+    from drivers.realsense import RealSenseCamera
+
+    _rs()
+    bag = Path(__file__).parent / "vendor" / "real" / "realsense" / "single_depth_color_640x480.bag"
+    with RealSenseCamera(file=bag) as cam:
+        assert cam._option_settings().exposure_us == 8500.0  # what the settings were read from before
+        got = cam.read_settings()
+        first = next(cam.frames(1)).metadata
+    assert got.auto_exposure and first.auto_exposure
+    assert (got.exposure_us, got.gain, got.projector_on) == (first.exposure_us, first.gain, first.projector_on) == (6452.0, 16.0, True)

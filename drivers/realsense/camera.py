@@ -101,6 +101,7 @@ class RealSenseCamera(DepthCamera):
         self._info: CameraInfo | None = None
         self._metadata_ok: bool | None = None
         self._played = 0
+        self._last_raw: dict[str, float] | None = None  # the metadata of the last depth frame read
         self._last_number = -1
         self._pending: dict[int, dict[str, Any]] = {}
         if self.file is not None:
@@ -313,7 +314,12 @@ class RealSenseCamera(DepthCamera):
         return self.read_settings()
 
     def read_settings(self) -> CameraSettings:
+        """The camera's settings; a recording's as its frames' metadata state them (`_as_its_frames_say`)."""
         self._require_open()
+        options = self._option_settings()
+        return self._as_its_frames_say(options) if self._playback is not None else options
+
+    def _option_settings(self) -> CameraSettings:
         rs = self._rs
         emitter = self._option(rs.option.emitter_enabled, 0.0)
         laser = self._option(rs.option.laser_power, None)
@@ -323,6 +329,24 @@ class RealSenseCamera(DepthCamera):
             gain=float(self._option(rs.option.gain, float("nan"))),
             auto_exposure=bool(self._option(rs.option.enable_auto_exposure, 0.0)),
         )
+
+    def _as_its_frames_say(self, options: CameraSettings) -> CameraSettings:
+        """A recording's settings as the metadata of its next depth frame state them (of the last one read at its
+        end; the first one waited for before any); the playback's options for what the metadata lack.
+
+        The options are a snapshot the recorder took near the start, on the SDK's thread: they can differ from what
+        the frames were exposed with (auto-exposure switched on as a recording began read back as off while its first
+        frame had it on: 1 of 12 recordings, tests/test_realsense.py)."""
+        wait_s = self.timeout_s if self._last_raw is None else 0.0
+        item = self._buffer.first("depth", wait_s) if self._buffer is not None else None
+        raw = item.metadata if item is not None else (self._last_raw or {})
+        if "actual_exposure" not in raw:
+            return options
+        m = self._metadata(raw)
+        emitter = any(k in raw for k in ("frame_emitter_mode", "frame_laser_power_mode", "frame_laser_power"))
+        return CameraSettings(projector_on=m.projector_on if emitter else options.projector_on, exposure_us=m.exposure_us,
+                              gain=m.gain if "gain_level" in raw else options.gain,
+                              auto_exposure=m.auto_exposure if "auto_exposure" in raw else options.auto_exposure)
 
     # -- frames ----------------------------------------------------------------------------
     def frames(self, n: int, *, ir: bool = False) -> Iterator[Frame]:
@@ -362,6 +386,7 @@ class RealSenseCamera(DepthCamera):
                     del self._pending[old]
                 produced += 1
                 d = slot["depth"]
+                self._last_raw = d.metadata
                 yield Frame(depth=d.data, frame_number=number, timestamp_ms=d.timestamp_ms, metadata=self._metadata(d.metadata),
                             ir=slot["ir"].data if ir and "ir" in slot else None)
 

@@ -85,6 +85,16 @@ class FrameBuffer:
             self.cv.notify_all()
             return item
 
+    def first(self, kind: str, timeout_s: float) -> Item | None:
+        """The oldest buffered frame of `kind`, left in the buffer; waits up to timeout_s for one (None: none came)."""
+        def found() -> Item | None:
+            return next((i for i in self.items if i.kind == kind), None)
+
+        with self.cv:
+            self.cv.wait_for(lambda: found() is not None or self.closed or self.error is not None
+                             or (self.lossless and len(self.items) >= self.size), timeout_s)
+            return found()
+
     def drain(self) -> int:
         """Discard every buffered frame; return the highest frame number discarded (-1 if none)."""
         with self.cv:
