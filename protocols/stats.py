@@ -92,8 +92,10 @@ class PixelMomentAccumulator:
         """
         if depth.shape != self.shape:
             raise ValueError(f"frame shape {depth.shape} differs from the stop's {self.shape}")
-        if depth.dtype != np.uint16:
-            depth = depth.astype(np.uint16)
+        if depth.dtype != np.uint16 or not (depth.flags.c_contiguous and depth.flags.writeable):
+            # one compiled variant of `_fold`, not one per layout: numba compiles read-only frames (a bag's, the SDK's)
+            # and strided ones (a window of a frame) separately, ~1 s each on a first run
+            depth = np.array(depth, dtype=np.uint16, order="C")
         n_valid, inv_sum, n_paired, n_changed = _fold(depth, self.shift, self.count, self.s1, self.s2, self.s3, self.s4,
                                                       self.prev, self.pairs, self.lag_xy, self.lag_x_plus_y)
         self.last_valid = int(n_valid)

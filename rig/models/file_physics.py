@@ -38,8 +38,9 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
     var_lin = np.ascontiguousarray(pred.var_m2, dtype=float)
     n = var_lin.size
     base_var = var_lin if pred.censor is None else np.ascontiguousarray(pred.censor[1], dtype=float)
-    k4_in = np.zeros(1) if pred.k4_m4 is None else np.ascontiguousarray(np.broadcast_to(pred.k4_m4, var_lin.shape), dtype=float)
-    cut = np.zeros(1) if pred.censor is None else np.ascontiguousarray(np.broadcast_to(pred.censor[0], var_lin.shape), dtype=float)
+    # writeable arrays: numba compiles a read-only one (a broadcast) as another variant of `_transform`
+    k4_in = np.zeros(1) if pred.k4_m4 is None else _writeable(np.broadcast_to(pred.k4_m4, var_lin.shape))
+    cut = np.zeros(1) if pred.censor is None else _writeable(np.broadcast_to(pred.censor[0], var_lin.shape))
     var_out, k4_out, fill = np.empty(n), np.empty(n), np.empty(n)
     partials = np.empty((9, n) if t is not None else (9, 1))  # one contiguous row per partial: scaled below
     near = _transform(var_lin, base_var, k4_in, pred.k4_m4 is not None, cut, pred.censor is not None,
@@ -63,6 +64,11 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
         t.fill = plus(scale(t.fill, fill), scale(plus(scale(d_base, df_base), scale(d_cut, df_cut)),
                                                  1.0 if fill_before is None else fill_before))
     t.var, t.k4 = new_var, new_k4
+
+
+def _writeable(a: np.ndarray) -> np.ndarray:
+    """`a` as a C-contiguous, writeable float64 array (copied only when it is not one)."""
+    return np.require(a, dtype=float, requirements=["C", "W"])
 
 
 @njit(cache=True, nogil=True, inline="always")
