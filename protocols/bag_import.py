@@ -30,6 +30,7 @@ from drivers.stage import NoStage
 from .bag_spans import parse_distances, parse_time_spans, stops_at_gaps, stops_in_time
 from .folder_import import PROTOCOL, _check_paths_out, import_stopped, write_aside
 from .plan import Capture, Configure, Move, Plan
+from .recording import HDF5_LIBVER
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
 
 #: how far two bags' intrinsics may differ (px) and still be one camera at one resolution
@@ -194,7 +195,7 @@ def _record(stops: list[BagStop], values: dict[str, Any], src: Path, path: Path,
 def _provenance(path: Path, src: Path, facts: list[BagFacts], manifest: dict[str, Any], given: dict[str, Any],
                 stops: list[BagStop]) -> None:
     """Where the frames came from: the bags, what they said, the overrides, each stop's bag and topic."""
-    with h5py.File(path, "a") as f:
+    with h5py.File(path, "a", libver=HDF5_LIBVER) as f:
         f.attrs["import_source_folder"] = str(src.resolve())
         f.attrs["import_manifest"] = json.dumps({"bag": facts[0].known(), "rig-import.toml": manifest}, default=str)
         f.attrs["import_overrides"] = json.dumps(given, default=str)

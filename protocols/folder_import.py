@@ -31,6 +31,7 @@ from drivers.stage import NoStage
 from .disk_space import is_disk_full, is_storage_failure
 from .leftovers import remove_dead_leftovers
 from .plan import Capture, Configure, Move, Plan
+from .recording import HDF5_LIBVER
 from .stop_journal import journal_dir
 from .runner import PlanRefused, ProgressCallback, ProgressEvent, Runner, RunError
 
@@ -136,7 +137,7 @@ def import_stopped(src: Path, e: BaseException) -> FolderImportError:
 def write_provenance(path: Path, src: Path, manifest: dict[str, Any], overrides: dict[str, Any] | None,
                      stops: list[StopSource]) -> None:
     """Where the frames came from: the folder, the manifest as read, the overrides, each stop's files."""
-    with h5py.File(path, "a") as f:
+    with h5py.File(path, "a", libver=HDF5_LIBVER) as f:
         f.attrs["import_source_folder"] = str(src.resolve())
         f.attrs["import_manifest"] = json.dumps(manifest, default=str)
         f.attrs["import_overrides"] = json.dumps({k: v for k, v in (overrides or {}).items() if v is not None}, default=str)

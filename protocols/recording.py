@@ -25,6 +25,11 @@ from .stats import PixelStats
 
 FORMAT = "rig.recording"
 FORMAT_VERSION = 1
+#: the HDF5 structures every file rig writes uses: from HDF5 1.8's on, whose object headers carry checksums, so a
+#: flipped byte in an attribute's header reads as "incorrect metadata checksum" instead of being believed (HDF5
+#: 1.14 segfaulted reading an attribute whose type bits a flipped byte had changed, tests/test_fuzz_recordings.py);
+#: readable by HDF5 1.10 and later (h5py since 2.9)
+HDF5_LIBVER = ("v108", "v110")
 
 
 from . import stop_journal as journal  # noqa: E402

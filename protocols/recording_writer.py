@@ -30,7 +30,8 @@ from .plan import Plan
 from .plan_check import plan_change, resume_problems
 from drivers.camera import CameraCalibration
 
-from .recording import FORMAT, FORMAT_VERSION, FrameSeries, check_format, jsonable, software_version, utc_now
+from .recording import (FORMAT, FORMAT_VERSION, HDF5_LIBVER, FrameSeries, check_format, jsonable, software_version,
+                        utc_now)
 from .leftovers import remove_dead_leftovers
 from .recording_errors import AssemblyError, RecordingError
 from .run_lock import RunLock
@@ -139,7 +140,7 @@ class RecordingWriter:
             "camera_model": str(camera.get("model", "")), "camera_serial": str(camera.get("serial", "")),
             "camera": json.dumps(jsonable(camera)), "stage": json.dumps(jsonable(stage)),
         }
-        with h5py.File("header", "w", driver="core", backing_store=False) as f:
+        with h5py.File("header", "w", driver="core", backing_store=False, libver=HDF5_LIBVER) as f:
             f.attrs.update(attrs)
             cam = f.create_group("camera")
             for k, v in vars(calibration).items():
@@ -181,7 +182,7 @@ class RecordingWriter:
         tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.header")
         try:
             shutil.copyfile(self.path, tmp)
-            with h5py.File(tmp, "a") as f:
+            with h5py.File(tmp, "a", libver=HDF5_LIBVER) as f:
                 try:
                     history = json.loads(f.attrs.get("plan_history", "[]"))
                 except (TypeError, ValueError):
@@ -218,10 +219,10 @@ class RecordingWriter:
         d.mkdir(exist_ok=True)
         if keep_raw:
             partial = journal.partial_file(self.path, label)
-            f = h5py.File(partial, "w")
+            f = h5py.File(partial, "w", libver=HDF5_LIBVER)
         else:
             partial = None
-            f = h5py.File(label, "w", driver="core", backing_store=False)
+            f = h5py.File(label, "w", driver="core", backing_store=False, libver=HDF5_LIBVER)
         self._open_stop = (f, label, partial)
         g = f.create_group(journal.STOP_GROUP)
         g.attrs["complete"] = False
@@ -329,12 +330,12 @@ class RecordingWriter:
                 # disk is a plain OSError (HDF5 1.14 crashes in close() after a failed write: SIGSEGV, found by
                 # injecting ENOSPC at each pwrite64, tests/fault_matrix.py)
                 image = io.BytesIO(self.path.read_bytes())
-                with h5py.File(image, "a") as out:
+                with h5py.File(image, "a", libver=HDF5_LIBVER) as out:
                     _copy_stops(out, files)
                 journal.write_bytes_durably(image.getvalue(), self.path)
             else:  # too big for memory (raw frames kept): assembled on disk, beside the recording
                 shutil.copyfile(self.path, tmp)
-                with h5py.File(tmp, "a") as out:
+                with h5py.File(tmp, "a", libver=HDF5_LIBVER) as out:
                     _copy_stops(out, files)
                 journal.commit(tmp, self.path)
         except (OSError, RuntimeError) as e:  # h5py says a full disk as RuntimeError ("errno = 28")

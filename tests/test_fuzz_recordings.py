@@ -133,3 +133,19 @@ def test_a_deleted_stop_is_said(good, tmp_path):
         del f["stops"][_stops(f)[4]]
     code, fit, _ = fit_json(bad)
     assert code == 0 and any("10 of 11 planned stops" in n for n in fit["notes"]), fit
+
+
+def test_a_flipped_byte_in_an_attributes_header_is_one_line_not_a_crash(good, tmp_path):
+    """HDF5 1.14 segfaulted reading a stop's attribute whose datatype a flipped byte had changed (the class bits of
+    `settings_read_back`, a variable-length string: `rig fit` exited -11). rig writes its files with checksummed
+    object headers now (protocols.recording.HDF5_LIBVER): each byte of that attribute's message flipped in turn is
+    one line or the undamaged fit. In-process: a crash ends the worker, which fails the test."""
+    path, truth = good
+    data = path.read_bytes()
+    at = data.find(b"settings_read_back")
+    assert at > 0 and b"OHDR" in data  # version 2 object headers, the ones with checksums
+    for offset in range(at + len("settings_read_back"), at + len("settings_read_back") + 24):
+        bad = bytearray(data)
+        bad[offset] ^= 0x49  # 0x01 -> 0x48 at the string's class bits was the crash
+        (tmp_path / "bad.h5").write_bytes(bytes(bad))
+        judge(tmp_path / "bad.h5", truth)
