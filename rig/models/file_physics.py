@@ -38,9 +38,8 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
     var_lin = np.ascontiguousarray(pred.var_m2, dtype=float)
     n = var_lin.size
     base_var = var_lin if pred.censor is None else np.ascontiguousarray(pred.censor[1], dtype=float)
-    # writeable arrays: numba compiles a read-only one (a broadcast) as another variant of `_transform`
-    k4_in = np.zeros(1) if pred.k4_m4 is None else _writeable(np.broadcast_to(pred.k4_m4, var_lin.shape))
-    cut = np.zeros(1) if pred.censor is None else _writeable(np.broadcast_to(pred.censor[0], var_lin.shape))
+    k4_in = np.zeros(1) if pred.k4_m4 is None else _per_row(pred.k4_m4, var_lin.shape)
+    cut = np.zeros(1) if pred.censor is None else _per_row(pred.censor[0], var_lin.shape)
     var_out, k4_out, fill = np.empty(n), np.empty(n), np.empty(n)
     partials = np.empty((9, n) if t is not None else (9, 1))  # one contiguous row per partial: scaled below
     near = _transform(var_lin, base_var, k4_in, pred.k4_m4 is not None, cut, pred.censor is not None,
@@ -66,9 +65,11 @@ def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -
     t.var, t.k4 = new_var, new_k4
 
 
-def _writeable(a: np.ndarray) -> np.ndarray:
-    """`a` as a C-contiguous, writeable float64 array (copied only when it is not one)."""
-    return np.require(a, dtype=float, requirements=["C", "W"])
+def _per_row(a: np.ndarray | float, shape: tuple[int, ...]) -> np.ndarray:
+    """`a` as a C-contiguous, writeable float64 array of `shape`: as it is when it is one, else a copy (numba compiles
+    a read-only array, such as a broadcast, as another variant of `_transform`)."""
+    a = np.asarray(a, dtype=float)
+    return np.require(a if a.shape == shape else np.broadcast_to(a, shape), dtype=float, requirements=["C", "W"])
 
 
 @njit(cache=True, nogil=True, inline="always")
