@@ -21,7 +21,7 @@ RIG = [str(Path(sys.executable).parent / "rig")]
 
 
 def _killed(args: list[str], cwd: Path, call: str, n: int) -> int:
-    cmd = [_strace(), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:signal=KILL:when={n}",
+    cmd = [*_strace(kill=True), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:signal=KILL:when={n}",
            *RIG, *args]
     return subprocess.run(cmd, cwd=cwd, capture_output=True, timeout=120, env=_env(args)).returncode
 
@@ -29,7 +29,7 @@ def _killed(args: list[str], cwd: Path, call: str, n: int) -> int:
 def _main_writes(args: list[str], cwd: Path) -> int:
     """The writes of the rig process itself (strace counts each process's calls apart for `when=`)."""
     log = cwd / "w.strace"
-    subprocess.run([_strace(), "-f", "-o", str(log), "-e", "trace=write", *RIG, *args], cwd=cwd, check=True,
+    subprocess.run([*_strace(), "-f", "-o", str(log), "-e", "trace=write", *RIG, *args], cwd=cwd, check=True,
                    capture_output=True, timeout=120, env=_env(args))
     per_pid: dict[str, int] = {}
     for line in log.read_text().splitlines():
