@@ -193,6 +193,9 @@ class ModelData(ShapeStatistics):
         neighbours' variance and the true range, unless `neighbours` is False) is made for the stop first, and
         the pieces share it, so the work over every pixel holds arrays of a piece, not of a stop."""
         rows = rows or PIECE_ROWS
+        if rows < len(self) <= CHUNK_ROWS:  # one chunk: its pieces are kept, and with them what each computes
+            yield from self._kept_pieces(rows, neighbours)
+            return
         for c in self.chunks():
             if len(c) <= rows:
                 yield c
@@ -201,6 +204,20 @@ class ModelData(ShapeStatistics):
                 c.z0_m  # the stop's own, from its neighbours, made once for all its pieces
             for a in range(0, len(c), rows):
                 yield c._taken(slice(a, a + rows), derived=True)
+
+    def _kept_pieces(self, rows: int, neighbours: bool) -> list["ModelData"]:
+        """The pieces of data that are one chunk, made once and kept: a fit evaluates its likelihood on them hundreds of
+        times, and each piece keeps what it computes (its rows' positions among the windows, covariates). Made
+        again when this data has computed a derived quantity or covariate since, which the pieces then take as
+        slices instead of computing their own."""
+        if neighbours:
+            self.z0_m
+        known = (rows, neighbours, tuple(n for n in (*DERIVED, "kurtosis_by_range") if n in self.__dict__), tuple(self._cols))
+        kept = self.__dict__.get("kept_pieces")
+        if kept is None or kept[0] != known:
+            pieces = [self._taken(slice(a, a + rows), derived=True) for a in range(0, len(self), rows)]
+            kept = self.__dict__["kept_pieces"] = (known, pieces)
+        return kept[1]
 
     # -- sizes -----------------------------------------------------------------------------------
     def __len__(self) -> int:
