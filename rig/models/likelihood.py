@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 from scipy.special import gammaln
 
-from .tangents import Tangents, plus, scale
+from .tangents import Tangents
 
 if TYPE_CHECKING:
     from .component import ComposedModel
@@ -98,41 +98,35 @@ class LoglikSums:
             *, constant: bool = False) -> None:
         """Add the rows of `d` (a chunk of the data, or all of it) with their predicted variance, fourth
         cumulant and fill; with `constant`, also their data-only Gamma terms."""
+        self._add(d, var, k4, fill, constant, None)
+
+    def _add(self, d: ModelData, var: np.ndarray, k4: np.ndarray | None, fill: np.ndarray | float | None,
+             constant: bool, t: Tangents | None) -> None:
         a, b, kw, pw = likelihood_weights(d)
         if constant:
             self.constant += gamma_constant(d)
         window_pos, stop_pos = self._positions(d)
-        one = np.ones(1)
+        var = np.ascontiguousarray(var, dtype=float)
+        none = _NO_TANGENT
+        tv, tk4, tf = (none, none, none) if t is None else (_rows(t.var, var.size), _rows(t.k4, var.size), _rows(t.fill, var.size))
         self.gamma += _accumulate(
-            np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float), np.ascontiguousarray(var, dtype=float),
-            one if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, var.shape), dtype=float), k4 is not None,
+            np.ascontiguousarray(a, dtype=float), np.ascontiguousarray(b, dtype=float), var,
+            _ONE if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, var.shape), dtype=float), k4 is not None,
             np.atleast_1d(np.asarray(1.0 if fill is None else fill, dtype=float)), np.ascontiguousarray(kw, dtype=float),
             np.atleast_1d(np.asarray(pw, dtype=float)), window_pos, stop_pos,
-            self.kurt_num, self.kurt_den, self.fill_sum, self.fill_count)
+            self.kurt_num, self.kurt_den, self.fill_sum, self.fill_count,
+            tv, tk4, tf, self.g_gamma if t is not None else _NO_SUM, self.g_num if t is not None else none,
+            self.g_fill if t is not None else none)
 
-    def add_tangent(self, d: ModelData, pred: Prediction, t: Tangents) -> None:
-        """Add the rows' share of the gradient: their prediction's derivatives `t` (`rig.models.tangents`) times
-        the likelihood's own, d/d var of the Gamma terms, and the kurtosis windows' and stops' sums' derivatives."""
+    def add_with_tangent(self, d: ModelData, pred: Prediction, t: Tangents) -> None:
+        """`add` the rows of `d` with their prediction, and their share of the gradient: the prediction's derivatives
+        `t` (`rig.models.tangents`) times the likelihood's own, d/d var of the Gamma terms, and the kurtosis windows'
+        and stops' sums' derivatives; one compiled pass over the rows (`_accumulate`)."""
         if not hasattr(self, "g_gamma"):
             self.g_gamma = np.zeros(t.m)
             self.g_num = np.zeros((t.m, len(self.windows)))
             self.g_fill = np.zeros((t.m, len(self.stops)))
-        a, b, kw, pw = likelihood_weights(d)
-        window_pos, stop_pos = self._positions(d)
-        v = np.asarray(pred.var_m2, dtype=float)
-        if t.var is not None:
-            self.g_gamma += t.var @ ((b / v - a) / v)  # d/dv of -(a ln v + b / v)
-        if len(self.windows):
-            inw = window_pos >= 0
-            k4 = 0.0 if pred.k4_m4 is None else np.broadcast_to(pred.k4_m4, v.shape)
-            contrib = plus(scale(t.k4, kw / v**2), scale(t.var, -2.0 * kw * k4 / v**3))  # d (kw k4 / v^2)
-            if contrib is not None:
-                for j in range(t.m):
-                    self.g_num[j] += np.bincount(window_pos[inw], weights=contrib[j][inw], minlength=len(self.windows))
-        if t.fill is not None:
-            contrib = t.fill * pw
-            for j in range(t.m):
-                self.g_fill[j] += np.bincount(stop_pos, weights=contrib[j], minlength=len(self.stops))
+        self._add(d, pred.var_m2, pred.k4_m4, pred.fill, False, t)
 
     def gradient(self) -> np.ndarray:
         """d `total()` / d parameters, from the sums `add_tangent` made."""
@@ -177,13 +171,32 @@ class LoglikSums:
         return self.gamma + self.constant + kurt + fill
 
 
+_ONE = np.ones(1)
+#: a tangent that is zero for every parameter (None in `Tangents`), and the sums of no gradient: one compiled variant
+_NO_TANGENT = np.zeros((0, 0))
+_NO_SUM = np.zeros(0)
+
+
+def _rows(t: np.ndarray | None, n: int) -> np.ndarray:
+    """A tangent as the (parameters, rows) C-contiguous float array `_accumulate` takes; `_NO_TANGENT` for None."""
+    if t is None:
+        return _NO_TANGENT
+    return np.ascontiguousarray(t, dtype=float) if t.shape[-1] == n else np.ascontiguousarray(np.broadcast_to(t, (t.shape[0], n)), dtype=float)
+
+
 @njit(cache=True, nogil=True)
 def _accumulate(a, b, var, k4, has_k4, fill, kw, pw, window_pos, stop_pos, kurt_num, kurt_den, fill_sum,
-                fill_count):  # pragma: no cover - compiled
+                fill_count, tv, tk4, tf, g_gamma, g_num, g_fill):  # pragma: no cover - compiled
     """One pass over the rows: returns sum(-a ln var - b / var) and adds into the kurtosis windows' sums of kw
-    k4 / var^2 and kw, and the stops' sums of pixels x fill and pixels (`fill`, `pw`: one value, or one per row)."""
+    k4 / var^2 and kw, and the stops' sums of pixels x fill and pixels (`fill`, `pw`: one value, or one per row).
+
+    With tangents (`tv`, `tk4`, `tf`: d var, d k4, d fill per parameter and row; empty when zero), also the
+    gradient's sums: g_gamma += d var (b / var - a) / var (d/d var of -(a ln var + b / var)); per window,
+    g_num += kw (d k4 / var^2 - 2 k4 d var / var^3) (d of kw k4 / var^2); per stop, g_fill += pixels x d fill."""
     gamma = 0.0
     lost = 0.0  # Neumaier's compensation: a plain running sum's rounding would be noise to the optimiser
+    m = g_gamma.size
+    has_tv, has_tk4, has_tf = tv.shape[0] > 0, tk4.shape[0] > 0, tf.shape[0] > 0
     for i in range(var.size):
         v = var[i]
         term = -(a[i] * np.log(v) + b[i] / v)
@@ -193,15 +206,31 @@ def _accumulate(a, b, var, k4, has_k4, fill, kw, pw, window_pos, stop_pos, kurt_
         else:
             lost += (term - t) + gamma
         gamma = t
+        if has_tv:
+            coef = (b[i] / v - a[i]) / v
+            for j in range(m):
+                g_gamma[j] += tv[j, i] * coef
         w = window_pos[i]
         if w >= 0:  # grouped nodes may carry negative weights (a quadrature rule)
             kurt_den[w] += kw[i]
             if has_k4:
                 kurt_num[w] += kw[i] * k4[i] / (v * v)
+            if m > 0 and kw[i] != 0.0:
+                if has_tk4:
+                    c4 = kw[i] / (v * v)
+                    for j in range(m):
+                        g_num[j, w] += tk4[j, i] * c4
+                if has_tv and has_k4:
+                    cv = -2.0 * kw[i] * k4[i] / (v * v * v)
+                    for j in range(m):
+                        g_num[j, w] += tv[j, i] * cv
         p = pw[i] if pw.size > 1 else pw[0]
         s = stop_pos[i]
         fill_sum[s] += p * (fill[i] if fill.size > 1 else fill[0])
         fill_count[s] += p
+        if has_tf:
+            for j in range(m):
+                g_fill[j, s] += tf[j, i] * p
     return gamma + lost
 
 
@@ -240,8 +269,7 @@ def model_loglik_gradient(model: ComposedModel, values: dict[str, float], d: Mod
     for c in d.pieces():
         t = Tangents(names, len(c))
         pred: Prediction = model.predict(values, c, t)
-        sums.add(c, pred.var_m2, pred.k4_m4, pred.fill)
-        sums.add_tangent(c, pred, t)
+        sums.add_with_tangent(c, pred, t)
     if not hasattr(sums, "g_gamma"):
         return sums.total() + gamma_constant(d), np.zeros(len(names))
     return sums.total() + gamma_constant(d), sums.gradient()
