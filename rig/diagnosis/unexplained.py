@@ -8,7 +8,8 @@ TIE_FRACTION of it are reported as equivalent (radius and incidence are one cova
 perpendicular wall). A wrong kurtosis gets empirical tails, a wrong fill rate an empirical fill
 gain, a frame mean wandering more than independent pixels allow an empirical correlation
 (`empirical(time)`). Terms are added one at a time, worst family first, until every statistic
-is within noise or MAX_TERMS are in. The result is a calibrated model that says what shape the
+is within noise or MAX_TERMS are in; a second or third sigma shape (over another covariate than the
+ones already in, or tied with them) only when it lowers BIC by more than 10 (`SIGNIFICANT_DBIC`). The result is a calibrated model that says what shape the
 missing effect has, before anyone knows its physics.
 """
 
@@ -17,9 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
-from ..models.empirical import COVARIATES, EmpiricalFrameMean, is_empirical
+from ..models.empirical import EmpiricalFrameMean, is_empirical
 from ..models.parallel import fit_models
 from ..models.progress import ProgressCounter
+from .candidates import SIGNIFICANT_DBIC
 from .consistency import Check
 from .scores import Headline, headline
 
@@ -167,11 +169,16 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: Pr
         if not usable:
             break
         best = min(usable, key=lambda t: t.dbic)
+        sigma_shape = best.covariate in SIGMA_SHAPES
+        if sigma_shape and any(step.covariate in SIGMA_SHAPES for step in out.steps) and not best.dbic < SIGNIFICANT_DBIC:
+            # a further sigma shape only when it lowers BIC significantly: else it would fit the first one's noise
+            tried.update(SIGMA_SHAPES)
+            continue
         tol = max(10.0, TIE_FRACTION * abs(best.dbic))
         order = {s: i for i, s in enumerate(shapes)}
-        chosen = min((t for t in usable if t.dbic <= best.dbic + tol), key=lambda t: order[t.covariate])
-        if chosen.covariate in COVARIATES or chosen.covariate == "position":
-            tried.update(SIGMA_SHAPES)  # one sigma shape per diagnosis: a second would fit the first's noise
+        tied = [t for t in usable if t.dbic <= best.dbic + tol]
+        chosen = min(tied, key=lambda t: order[t.covariate])
+        tried.update(t.covariate for t in tied)  # the shapes the data cannot tell from it are the same reading
         tried.add(chosen.covariate)
         term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(f"empirical({chosen.covariate})")]
         # then refit with the model's own parameters free too (earlier empirical terms held: they describe, not explain)
