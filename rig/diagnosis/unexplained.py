@@ -8,9 +8,9 @@ TIE_FRACTION of it are reported as equivalent (radius and incidence are one cova
 perpendicular wall). A wrong kurtosis gets empirical tails, a wrong fill rate an empirical fill
 gain, a frame mean wandering more than independent pixels allow an empirical correlation
 (`empirical(time)`). Terms are added one at a time, worst family first, until every statistic
-is within noise or MAX_TERMS are in; a second or third sigma shape (over another covariate than the
-ones already in, or tied with them) only when it lowers BIC by more than 10 (`SIGNIFICANT_DBIC`). The result is a calibrated model that says what shape the
-missing effect has, before anyone knows its physics.
+is within noise or MAX_TERMS are in; a second or third sigma shape (over a covariate neither in
+nor tied with the ones in) only when it lowers BIC by more than 10 (`SIGNIFICANT_DBIC`). The result
+is a calibrated model that says what shape the missing effect has, before anyone knows its physics.
 """
 
 from __future__ import annotations
@@ -169,8 +169,7 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: Pr
         if not usable:
             break
         best = min(usable, key=lambda t: t.dbic)
-        sigma_shape = best.covariate in SIGMA_SHAPES
-        if sigma_shape and any(step.covariate in SIGMA_SHAPES for step in out.steps) and not best.dbic < SIGNIFICANT_DBIC:
+        if best.covariate in SIGMA_SHAPES and any(step.covariate in SIGMA_SHAPES for step in out.steps) and not best.dbic < SIGNIFICANT_DBIC:
             # a further sigma shape only when it lowers BIC significantly: else it would fit the first one's noise
             tried.update(SIGMA_SHAPES)
             continue

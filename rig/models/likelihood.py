@@ -129,7 +129,7 @@ class LoglikSums:
         self._add(d, pred.var_m2, pred.k4_m4, pred.fill, False, t)
 
     def gradient(self) -> np.ndarray:
-        """d `total()` / d parameters, from the sums `add_tangent` made."""
+        """d `total()` / d parameters, from the sums `add_with_tangent` made."""
         g = self.g_gamma.copy()
         if len(self.windows):
             den = np.maximum(self.kurt_den, 1e-300)
