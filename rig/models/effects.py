@@ -365,13 +365,12 @@ class Censoring(Effect):
         pred.k4_m4 = var**2 * (m4 - 3 * m2**2) + k4_old * m2**2
         pred.fill = kept
         pred.censor = (c, var)  # the cut and the variance before it, for the exact range transform near the format's end
+        return c, kept, m2, m4
 
     def apply_tangent(self, pred, p, d, t):
         var, dvar, dk4_old = pred.var_m2, t.var, t.k4
         k4_old = pred.k4_m4 if pred.k4_m4 is not None else 0.0
-        self.apply(pred, p, d)
-        c, _ = pred.censor
-        kept, m2, m4 = truncated_normal_moments(c)
+        c, kept, m2, m4 = self.apply(pred, p, d)  # the cut and its moments, computed once
         # c = T / sigma_d, sigma_d ~ sqrt(var): dc = c (dT / T - dvar / (2 var)); with K = 2 Phi(c) - 1 and
         # phi the normal density, dK/dc = 2 phi, dm2/dc = -2 phi ((1 - c^2) K - 2 c phi) / K^2,
         # dm4/dc = -2 phi ((3 - c^4) K - 2 (c^3 + 3 c) phi) / K^2 (`truncated_normal_moments`)
