@@ -14,7 +14,6 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.special import ndtr
 
 from .data import ModelData
 from .prediction import Prediction
@@ -203,9 +202,23 @@ def curvature(pred: Prediction, d: ModelData) -> None:
 
 
 def truncated_normal_moments(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For N(0,1) truncated to [-c, c]: (fraction kept, E[x^2], E[x^4])."""
-    kept = np.maximum(2 * ndtr(c) - 1, 1e-300)
-    phi = np.exp(-0.5 * c * c) / SQRT_2PI
-    m2 = 1 - 2 * c * phi / kept
-    m4 = 3 - 2 * phi * (c**3 + 3 * c) / kept
-    return kept, m2, m4
+    """For N(0,1) truncated to [-c, c] (c >= 0): (fraction kept K = 2 Phi(c) - 1 = erf(c / sqrt 2), E[x^2] =
+    1 - 2 c phi(c) / K, E[x^4] = 3 - 2 phi(c) (c^3 + 3 c) / K); one compiled pass (`_truncated`): with scipy's
+    ndtr and numpy's temporaries it was 9 of the 80 s of a censoring diagnosis (noisy_confidence, 106x60 px)."""
+    c = np.asarray(c, dtype=float)
+    flat = np.require(c.reshape(-1), dtype=float, requirements=["C", "W"])
+    kept, m2, m4 = np.empty(flat.size), np.empty(flat.size), np.empty(flat.size)
+    _truncated(flat, kept, m2, m4)
+    return kept.reshape(c.shape), m2.reshape(c.shape), m4.reshape(c.shape)
+
+
+@njit(cache=True, nogil=True)
+def _truncated(c, kept, m2, m4):  # pragma: no cover - compiled
+    """`truncated_normal_moments` row by row (erf(c / sqrt 2) is 2 Phi(c) - 1 without its cancellation near 0)."""
+    for i in range(c.size):
+        x = c[i]
+        k = max(math.erf(x / math.sqrt(2.0)), 1e-300)
+        phi = math.exp(-0.5 * x * x) / SQRT_2PI
+        kept[i] = k
+        m2[i] = 1.0 - 2.0 * x * phi / k
+        m4[i] = 3.0 - 2.0 * phi * (x * x * x + 3.0 * x) / k
