@@ -36,6 +36,7 @@ from .component import Component, Effect
 from .data import ModelData
 from .likelihood import pixel_weights
 from .parameters import Param
+from .pchip import hermite_basis
 from .pchip import smooth as _smooth
 from .pchip import smooth_jacobian
 from .prediction import EffectStage, Prediction
@@ -122,16 +123,29 @@ class EmpiricalSigma(Effect):
         x = self._axis(c)
         return np.where(np.isfinite(x), _smooth(self._axis(knots), g, np.nan_to_num(x)), 0.0)
 
+    def _rows(self, d: ModelData, knots: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any]:
+        """(the covariate's axis with NaN as 0, where it is defined, the Hermite basis at the knots' axis) for the
+        rows of `d`, kept with `d`: they depend on the rows and the knots alone (`kept_basis`)."""
+        def make():
+            x = self._axis(self.read(d))
+            clean, axis_knots = np.nan_to_num(x), self._axis(knots)
+            return clean, np.isfinite(x), (hermite_basis(axis_knots, clean) if len(knots) >= 3 else None)
+        return kept_basis(d, (self.name, knots.tobytes()), make)
+
     def apply(self, pred, p, d):
-        pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(self.read(d), p))
+        if self.knots is None:
+            pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(self.read(d), p))
+            return
+        clean, ok, basis = self._rows(d, self.knots)
+        g = _smooth(self._axis(self.knots), np.array([0.0, *self.own(p)])[: len(self.knots)], clean, basis)
+        pred.var_m2 = pred.var_m2 * np.exp(2.0 * np.where(ok, g, 0.0))
 
     def apply_tangent(self, pred, p, d, t):
         # var *= exp(2 g): d var = exp(2 g) d var + 2 var exp(2 g) dg, dg / d g_i from the cubic (`pchip`)
         knots = self.knots if self.knots is not None else np.linspace(0, 1, len(self.params) + 1)
         g_at = np.array([0.0, *self.own(p)])[: len(knots)]
-        x = self._axis(self.read(d))
-        ok = np.isfinite(x)
-        g, jac = smooth_jacobian(self._axis(knots), g_at, np.nan_to_num(x))
+        clean, ok, basis = self._rows(d, knots)
+        g, jac = smooth_jacobian(self._axis(knots), g_at, clean, basis)
         mult = np.exp(2.0 * np.where(ok, g, 0.0))
         pred.var_m2 = pred.var_m2 * mult
         knot = {q.name: j + 1 for j, q in enumerate(self.params)}  # parameter g_j is the value at knot j (knot 0: 0)
@@ -181,16 +195,25 @@ class _RangeShape(Effect):
             self.knots = _spaced_knots(np.log(getattr(d, "full", d).z0_m), len(self.params))
         return {q.name: q.value for q in self.params}
 
-    def curve(self, z_m: np.ndarray, p: Any) -> np.ndarray:
-        lz = np.log(np.asarray(z_m, dtype=float))
-        knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
-        return _smooth(knots, np.array(self.own(p))[: len(knots)], lz)
+    def _at(self, z_m: np.ndarray, d: ModelData | None) -> tuple[np.ndarray, np.ndarray, Any]:
+        """(ln Z, the knots, their Hermite basis or None): kept with `d` when given (z_m is then its rows' z0_m)."""
+        def make():
+            lz = np.log(np.asarray(z_m, dtype=float))
+            knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
+            return lz, knots, (hermite_basis(knots, lz) if len(knots) >= 3 else None)
+        if d is None or self.knots is None:
+            return make()
+        return kept_basis(d, (self.name, self.knots.tobytes()), make)
 
-    def curve_tangent(self, z_m: np.ndarray, p: Any, t: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    def curve(self, z_m: np.ndarray, p: Any, d: ModelData | None = None) -> np.ndarray:
+        """The curve at ranges `z_m`; given `d` (whose rows' true ranges `z_m` are), with the basis kept with it."""
+        lz, knots, basis = self._at(z_m, d)
+        return _smooth(knots, np.array(self.own(p))[: len(knots)], lz, basis)
+
+    def curve_tangent(self, z_m: np.ndarray, p: Any, t: Any, d: ModelData | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """The curve and its derivative with respect to the parameters `t` differentiates, (m, rows) or None."""
-        lz = np.log(np.asarray(z_m, dtype=float))
-        knots = self.knots if self.knots is not None else _spaced_knots(lz, len(self.params))
-        g, jac = smooth_jacobian(knots, np.array(self.own(p))[: len(knots)], lz)
+        lz, knots, basis = self._at(z_m, d)
+        g, jac = smooth_jacobian(knots, np.array(self.own(p))[: len(knots)], lz, basis)
         index = {q.name: j for j, q in enumerate(self.params)}
         return g, t.seeded([(i, jac[index[name]]) for i, name in t.own_rows(self) if index[name] < len(knots)])
 
@@ -208,14 +231,15 @@ class EmpiricalTails(_RangeShape):
         return np.maximum(self.curve(z_m, p), -1.5)
 
     def apply(self, pred, p, d):
-        k4 = self.excess(d.z0_m, p) * pred.var_m2**2
+        k4 = np.maximum(self.curve(d.z0_m, p, d), -1.5) * pred.var_m2**2
         pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4
 
     def apply_tangent(self, pred, p, d, t):
-        curve, dcurve = self.curve_tangent(d.z0_m, p, t)
+        curve, dcurve = self.curve_tangent(d.z0_m, p, t, d)
         excess = np.maximum(curve, -1.5)
         var = pred.var_m2
-        self.apply(pred, p, d)
+        k4 = excess * var**2
+        pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4
         t.k4 = plus(t.k4, scale(t.var, 2.0 * excess * var), scale(dcurve, np.where(curve > -1.5, var**2, 0.0)))
 
 
@@ -303,14 +327,23 @@ class EmpiricalFill(_RangeShape):
 
     def apply(self, pred, p, d):
         fill = pred.fill if pred.fill is not None else np.ones(len(d))
-        pred.fill = fill * self.gain(d.z0_m, p)
+        pred.fill = fill * expit(self.curve(d.z0_m, p, d))
 
     def apply_tangent(self, pred, p, d, t):
         fill = pred.fill if pred.fill is not None else 1.0
-        curve, dcurve = self.curve_tangent(d.z0_m, p, t)
+        curve, dcurve = self.curve_tangent(d.z0_m, p, t, d)
         gain = expit(curve)
         pred.fill = fill * gain
         t.fill = plus(scale(t.fill, gain), scale(dcurve, fill * gain * (1.0 - gain)))
+
+
+def kept_basis(d: ModelData, key: tuple, make: Any) -> Any:
+    """`make()`, kept with `d` under `key`: what an empirical shape computes from its rows and knots alone (the
+    axis and the Hermite basis), made once for the hundreds of evaluations of a fit."""
+    kept = d.__dict__.setdefault("empirical_rows", {})
+    if key not in kept:
+        kept[key] = make()
+    return kept[key]
 
 
 def is_empirical(e: Component) -> bool:

@@ -6,21 +6,30 @@ from __future__ import annotations
 import numpy as np
 
 
-def smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """A shape-preserving cubic through (knots, values), flat beyond the ends: scipy's PCHIP (the same slopes,
-    Fritsch-Butland at the interior knots and its three-point rule at the ends), evaluated directly because a
-    fit evaluates it thousands of times on the same few knots."""
+def hermite_basis(knots: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each x (clipped to the knots) falls and the cubic Hermite basis there: (interval index i, the (4, n)
+    array H00, H10 h, H01, H11 h, h the interval's width). It depends on x and the knots alone, so a fit that
+    evaluates a shape thousands of times on the same rows computes it once (`rig.models.empirical`)."""
+    knots = np.asarray(knots, dtype=float)
     x = np.clip(x, knots[0], knots[-1])
-    if len(knots) < 3:
-        return np.interp(x, knots, values)
-    slopes = pchip_slopes(np.asarray(knots, dtype=float), np.asarray(values, dtype=float))
     i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
     h = np.diff(knots)[i]
     t = (x - knots[i]) / h
     t2 = t * t
     t3 = t2 * t
-    return ((2 * t3 - 3 * t2 + 1) * values[i] + (t3 - 2 * t2 + t) * h * slopes[i]
-            + (3 * t2 - 2 * t3) * values[i + 1] + (t3 - t2) * h * slopes[i + 1])
+    return i, np.array([2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, 3 * t2 - 2 * t3, (t3 - t2) * h])
+
+
+def smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray,
+           basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """A shape-preserving cubic through (knots, values), flat beyond the ends: scipy's PCHIP (the same slopes,
+    Fritsch-Butland at the interior knots and its three-point rule at the ends), evaluated directly because a
+    fit evaluates it thousands of times on the same few knots. `basis`: `hermite_basis(knots, x)`, if kept."""
+    if len(knots) < 3:
+        return np.interp(np.clip(x, knots[0], knots[-1]), knots, values)
+    slopes = pchip_slopes(np.asarray(knots, dtype=float), np.asarray(values, dtype=float))
+    i, hb = basis if basis is not None else hermite_basis(knots, x)
+    return hb[0] * values[i] + hb[1] * slopes[i] + hb[2] * values[i + 1] + hb[3] * slopes[i + 1]
 
 
 def pchip_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -49,31 +58,28 @@ def pchip_end(h0: float, h1: float, m0: float, m1: float) -> float:
     return d
 
 
-def smooth_jacobian(knots: np.ndarray, values: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def smooth_jacobian(knots: np.ndarray, values: np.ndarray, x: np.ndarray,
+                    basis: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """`smooth(knots, values, x)` and its derivative with respect to each knot's value, (K, len(x)): the cubic
     Hermite form g = H00 y_i + H10 h s_i + H01 y_i+1 + H11 h s_i+1, with the slopes' own derivatives
-    (`slopes_jacobian`)."""
+    (`slopes_jacobian`). `basis`: `hermite_basis(knots, x)`, if kept."""
     knots = np.asarray(knots, dtype=float)
     values = np.asarray(values, dtype=float)
-    x = np.clip(x, knots[0], knots[-1])
     n_k = len(knots)
-    cols = np.arange(x.size)
     if n_k < 3:
+        x = np.clip(x, knots[0], knots[-1])
         t = (x - knots[0]) / (knots[1] - knots[0])
         jac = np.zeros((n_k, x.size))
         jac[0], jac[1] = 1 - t, t
         return np.interp(x, knots, values), jac
     slopes = pchip_slopes(knots, values)
     ds = slopes_jacobian(knots, values)
-    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, n_k - 2)
-    h = np.diff(knots)[i]
-    t = (x - knots[i]) / h
-    t2, t3 = t * t, t * t * t
-    h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, 3 * t2 - 2 * t3, t3 - t2
-    g = h00 * values[i] + h10 * h * slopes[i] + h01 * values[i + 1] + h11 * h * slopes[i + 1]
-    jac = (h10 * h) * ds[i].T + (h11 * h) * ds[i + 1].T
-    jac[i, cols] += h00
-    jac[i + 1, cols] += h01
+    i, hb = basis if basis is not None else hermite_basis(knots, x)
+    cols = np.arange(i.size)
+    g = hb[0] * values[i] + hb[1] * slopes[i] + hb[2] * values[i + 1] + hb[3] * slopes[i + 1]
+    jac = hb[1] * ds[i].T + hb[3] * ds[i + 1].T
+    jac[i, cols] += hb[0]
+    jac[i + 1, cols] += hb[2]
     return g, jac
 
 
