@@ -133,11 +133,9 @@ class EmpiricalSigma(Effect):
         return kept_basis(d, (self.name, knots.tobytes()), make)
 
     def apply(self, pred, p, d):
-        if self.knots is None:
-            pred.var_m2 = pred.var_m2 * np.exp(2.0 * self.log_multiplier(self.read(d), p))
-            return
-        clean, ok, basis = self._rows(d, self.knots)
-        g = _smooth(self._axis(self.knots), np.array([0.0, *self.own(p)])[: len(self.knots)], clean, basis)
+        knots = self.knots if self.knots is not None else np.linspace(0, 1, len(self.params) + 1)
+        clean, ok, basis = self._rows(d, knots)
+        g = _smooth(self._axis(knots), np.array([0.0, *self.own(p)])[: len(knots)], clean, basis)
         pred.var_m2 = pred.var_m2 * np.exp(2.0 * np.where(ok, g, 0.0))
 
     def apply_tangent(self, pred, p, d, t):

@@ -27,8 +27,13 @@ def smooth(knots: np.ndarray, values: np.ndarray, x: np.ndarray,
     fit evaluates it thousands of times on the same few knots. `basis`: `hermite_basis(knots, x)`, if kept."""
     if len(knots) < 3:
         return np.interp(np.clip(x, knots[0], knots[-1]), knots, values)
-    slopes = pchip_slopes(np.asarray(knots, dtype=float), np.asarray(values, dtype=float))
-    i, hb = basis if basis is not None else hermite_basis(knots, x)
+    values = np.asarray(values, dtype=float)
+    slopes = pchip_slopes(np.asarray(knots, dtype=float), values)
+    return _hermite(values, slopes, *(basis if basis is not None else hermite_basis(knots, x)))
+
+
+def _hermite(values: np.ndarray, slopes: np.ndarray, i: np.ndarray, hb: np.ndarray) -> np.ndarray:
+    """The cubic Hermite form H00 y_i + H10 h s_i + H01 y_i+1 + H11 h s_i+1 on a kept basis (`hermite_basis`)."""
     return hb[0] * values[i] + hb[1] * slopes[i] + hb[2] * values[i + 1] + hb[3] * slopes[i + 1]
 
 
@@ -76,7 +81,7 @@ def smooth_jacobian(knots: np.ndarray, values: np.ndarray, x: np.ndarray,
     ds = slopes_jacobian(knots, values)
     i, hb = basis if basis is not None else hermite_basis(knots, x)
     cols = np.arange(i.size)
-    g = hb[0] * values[i] + hb[1] * slopes[i] + hb[2] * values[i + 1] + hb[3] * slopes[i + 1]
+    g = _hermite(values, slopes, i, hb)
     jac = hb[1] * ds[i].T + hb[3] * ds[i + 1].T
     jac[i, cols] += hb[0]
     jac[i + 1, cols] += hb[2]
