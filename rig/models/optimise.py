@@ -19,6 +19,7 @@ from .independence import error_inflation
 from .likelihood import model_loglik_gradient
 from .parameters import Param
 from .result import ModelFit
+from .stopping import NewtonStop
 from .tangents import analytic
 
 if TYPE_CHECKING:
@@ -147,7 +148,9 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
         if not (np.isfinite(ll) and np.all(np.isfinite(g))):
             return 1e30, np.zeros(len(y))
         slope = np.array([v[n] if n == "k" else _free_slope(yi, p) for (n, p), yi in zip(free, y)])
-        return -ll / scale, -g * slope / scale
+        g_y = -g * slope / scale
+        stop.seen(y, g_y)  # the current start's stopping rule (made below)
+        return -ll / scale, g_y
 
     gradient = analytic(model)
 
@@ -167,8 +170,11 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
             # central differences: forward ones are too coarse on the flat ridges effects make (outliers' fraction
             # against their width), where they stopped L-BFGS-B several standard errors short of the optimum
             if gradient:
-                r = minimize(objective_and_gradient, y0, method="L-BFGS-B", jac=True,
+                stop = NewtonStop(scale)  # stops L-BFGS-B once a Newton step would gain < 1e-6 nats
+                r = minimize(objective_and_gradient, y0, method="L-BFGS-B", jac=True, callback=stop,
                              options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
+                if stop.stopped and _newton_gain_nats(r, scale) <= NM_FATOL_NATS:
+                    r.success, r.message = True, f"CONVERGENCE: a Newton step would gain {stop.gain_nats:.1e} nats"
             else:
                 r = minimize(objective, y0, method="L-BFGS-B", jac="3-point",
                              options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
