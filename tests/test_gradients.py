@@ -119,7 +119,8 @@ def test_composed_models_have_the_likelihoods_gradient(fine, spec):
 
 
 def test_the_stop_near_the_formats_end_takes_the_quadrature(fine):
-    """The fixture reaches the branch it is there for: rows within 6 standard deviations of the deepest range."""
+    """The fixture reaches the branch it is there for: rows within 6 standard deviations of the deepest range (the
+    series `_series` where the model does not censor, the quadrature where it does)."""
     z_max = 65535 * fine.depth_unit_m
     sigma_d = np.sqrt(fine.s2_m2) * fine.fb_px_m / fine.z0_m**2
     a = (fine.fb_px_m / z_max - fine.fb_px_m / fine.z0_m) / sigma_d
