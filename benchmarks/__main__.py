@@ -2,7 +2,8 @@
 
 Every figure against a baseline measured in the same run (see benchmarks/__init__.py); prints a Markdown table
 (figure, ours, baseline, ratio, target, pass/fail) and writes the figures and the machine to JSON. --quick uses
-a 212x120 sweep of 30 frames a stop (a minute) instead of the full 848x480 x 300 (about ten minutes).
+a 212x120 sweep of 30 frames a stop and one seed of the blind table (a few minutes) instead of the full 848x480 x 300
+and ten seeds (about half an hour, of which the blind table is 15-20 minutes).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 from . import capture, data, fitting, importing
 from .figures import table, write_json
 
-GROUPS = ("streaming", "capture", "camera", "run", "commands", "small", "per-sample", "scaling", "import")
+GROUPS = ("streaming", "capture", "camera", "run", "commands", "small", "per-sample", "scaling", "import", "table")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,6 +61,8 @@ def main(argv: list[str] | None = None) -> int:
             figures += fitting.against_per_sample(data.raw_recording(work))
         if "import" in want:
             figures += importing.importing(data.png_folder(work, size))
+        if "table" in want:  # last: the longest (about 15 minutes on 2 cores; one seed each with --quick)
+            figures += fitting.blind_table(data.demo_recording(work), work, seeds=1 if args.quick else 10)
     finally:
         if not args.keep and args.workdir is None:
             shutil.rmtree(work, ignore_errors=True)

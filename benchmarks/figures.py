@@ -75,12 +75,12 @@ def machine() -> dict:
 
 
 def table(figures: list[Figure]) -> str:
-    """The results as a Markdown table: figure, ours, baseline, ratio, target, pass/fail."""
-    rows = ["| figure | ours | baseline | ratio | target | |", "|---|---|---|---|---|---|"]
+    """The results as a Markdown table: figure, ours, baseline, ratio, target, pass/fail, note."""
+    rows = ["| figure | ours | baseline | ratio | target | | note |", "|---|---|---|---|---|---|---|"]
     for f in figures:
         verdict = "" if f.passed is None else ("pass" if f.passed else "FAIL")
         base = f"{_fmt(f.baseline)} {f.unit} ({f.baseline_name})" if f.baseline_name else f"{_fmt(f.baseline)} {f.unit}"
-        rows.append(f"| {f.name} | {_fmt(f.ours)} {f.unit} | {base} | {f.ratio:.2f} | {f.target} | {verdict} |")
+        rows.append(f"| {f.name} | {_fmt(f.ours)} {f.unit} | {base} | {f.ratio:.2f} | {f.target} | {verdict} | {f.note} |")
     return "\n".join(rows)
 
 
