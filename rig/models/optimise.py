@@ -1,7 +1,8 @@
-"""Maximum likelihood for any composed model: bounded parameters mapped to free ones, L-BFGS-B with
-central-difference gradients (and a Nelder-Mead polish on flat ridges), started from the paper's
-closed-form power-law fit, and Cramer-Rao standard errors from a finite-difference Hessian of the
-log-likelihood. Large data are fitted on grouped nodes (`rig.models.grouping`)."""
+"""Maximum likelihood for any composed model: bounded parameters mapped to free ones, L-BFGS-B with the
+likelihood's analytic gradient (`rig.models.tangents`; central differences for an effect without one), stopped
+when a Newton step would gain less than 1e-6 nats (`rig.models.stopping`), with a Nelder-Mead polish on flat
+ridges, started from the paper's closed-form power-law fit, and Cramer-Rao standard errors from a finite-difference
+Hessian of the log-likelihood. Large data are fitted on grouped nodes (`rig.models.grouping`)."""
 
 from __future__ import annotations
 
