@@ -10,6 +10,8 @@ stopped there, beyond noise (0.62 % noise), because it allowed one sigma shape. 
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from rig.cli import main
@@ -46,6 +48,12 @@ def test_a_second_sigma_shape_that_lowers_bic_significantly_goes_in_and_ends_wit
     assert chosen.dbic < SIGNIFICANT_DBIC, [(t.covariate, t.dbic) for t in second.trials]
     assert second.headline.error_pct < first.headline.error_pct, (first.headline, second.headline)
     assert u.final_headline.within_noise, (u.final_headline, [(s.covariate, s.headline.error_pct) for s in u.steps])
+    # the final model carries its standard errors; the intermediate ones say why they have none
+    final = u.final_fit
+    assert all(math.isfinite(final.errors[n]) and final.errors[n] > 0 for n, _ in final.model.free()), final.errors
+    for step in u.steps[:-1]:
+        assert not step.fit.errors and set(step.fit.error_notes) == {n for n, _ in step.fit.model.free()}
+        assert all(note.startswith("not computed: an intermediate model") for note in step.fit.error_notes.values())
 
 
 def test_with_no_further_shape_significant_the_path_keeps_one(beam, monkeypatch):

@@ -15,7 +15,7 @@ is a calibrated model that says what shape the missing effect has, before anyone
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
 from ..models.empirical import EmpiricalFrameMean, is_empirical
@@ -31,6 +31,9 @@ SHAPES_TRIED = 4
 #: shapes whose BIC gain is within this fraction of the best one's are equivalent
 TIE_FRACTION = 0.02
 #: when two shapes are equivalent, name them in this order (the simplest reading first)
+#: why an intermediate model of the empirical path has no standard errors (`ModelFit.error_notes`)
+INTERMEDIATE = ("not computed: an intermediate model of the diagnosis's empirical path (the final model carries its "
+                "errors; rig fit --model with this model gives these)")
 SIGMA_SHAPES = ("range", "radius", "slant", "position", "brightness", "incidence")
 #: what each failing family asks for
 FAMILY_SHAPE = {"kurtosis": "tails", "fill rate": "fill", "frame-mean variance": "time"}
@@ -184,14 +187,20 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: Pr
         counter.step(f"refitting {chosen.fit.model.name}")
         earlier = frozenset(n for e in current_fit.model.effects if is_empirical(e) for n in chosen.fit.values
                             if n.startswith(e.name + "."))
-        current_fit = with_errors(chosen.fit.model.fit(d, start=chosen.fit.values, errors=False, hold=earlier), d)
+        current_fit = chosen.fit.model.fit(d, start=chosen.fit.values, errors=False, hold=earlier)
         current_head = headline(current_fit, d)
         out.steps.append(EmpiricalStep(family, chosen.covariate, term, current_fit, current_head, trials))
     if len(out.steps) > 1 and not current_head.within_noise:
         # the terms were fitted one at a time; a last refit with everything free lets each settle with the others
         counter.step(f"refitting {current_fit.model.name} with every parameter free")
-        joint = with_errors(current_fit.model.fit(d, start=current_fit.values, errors=False), d)
+        joint = current_fit.model.fit(d, start=current_fit.values, errors=False)
         if joint.loglik > current_fit.loglik:
             last = out.steps[-1]
             last.fit, last.headline = joint, headline(joint, d)
+    # standard errors for the final model only: the Hessian of a model with three shapes (19 parameters) is 760
+    # likelihoods, and the intermediate models' were half of a noisy_confidence diagnosis; their fits say why not
+    for step in out.steps[:-1]:
+        step.fit = replace(step.fit, error_notes={n: INTERMEDIATE for n, _ in step.fit.model.free()})
+    if out.steps:
+        out.steps[-1].fit = with_errors(out.steps[-1].fit, d)
     return out
