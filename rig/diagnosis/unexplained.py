@@ -30,10 +30,10 @@ MAX_TERMS = 3
 SHAPES_TRIED = 4
 #: shapes whose BIC gain is within this fraction of the best one's are equivalent
 TIE_FRACTION = 0.02
-#: when two shapes are equivalent, name them in this order (the simplest reading first)
 #: why an intermediate model of the empirical path has no standard errors (`ModelFit.error_notes`)
 INTERMEDIATE = ("not computed: an intermediate model of the diagnosis's empirical path (the final model carries its "
                 "errors; rig fit --model with this model gives these)")
+#: when two shapes are equivalent, name them in this order (the simplest reading first)
 SIGMA_SHAPES = ("range", "radius", "slant", "position", "brightness", "incidence")
 #: what each failing family asks for
 FAMILY_SHAPE = {"kurtosis": "tails", "fill rate": "fill", "frame-mean variance": "time"}

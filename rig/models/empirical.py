@@ -225,11 +225,11 @@ class EmpiricalTails(_RangeShape):
     signature = "the measured kurtosis differs from the model's"
     explanation = "empirical tails: the errors' distribution is not the model's shape"
 
-    def excess(self, z_m: np.ndarray, p: Any) -> np.ndarray:
-        return np.maximum(self.curve(z_m, p), -1.5)
+    def excess(self, z_m: np.ndarray, p: Any, d: ModelData | None = None) -> np.ndarray:
+        return np.maximum(self.curve(z_m, p, d), -1.5)
 
     def apply(self, pred, p, d):
-        k4 = np.maximum(self.curve(d.z0_m, p, d), -1.5) * pred.var_m2**2
+        k4 = self.excess(d.z0_m, p, d) * pred.var_m2**2
         pred.k4_m4 = k4 if pred.k4_m4 is None else pred.k4_m4 + k4
 
     def apply_tangent(self, pred, p, d, t):
@@ -320,12 +320,12 @@ class EmpiricalFill(_RangeShape):
     signature = "the fill rate differs from the model's"
     explanation = "empirical sample loss: the camera drops samples for a reason the model does not know"
 
-    def gain(self, z_m: np.ndarray, p: Any) -> np.ndarray:
-        return expit(self.curve(z_m, p))
+    def gain(self, z_m: np.ndarray, p: Any, d: ModelData | None = None) -> np.ndarray:
+        return expit(self.curve(z_m, p, d))
 
     def apply(self, pred, p, d):
         fill = pred.fill if pred.fill is not None else np.ones(len(d))
-        pred.fill = fill * expit(self.curve(d.z0_m, p, d))
+        pred.fill = fill * self.gain(d.z0_m, p, d)
 
     def apply_tangent(self, pred, p, d, t):
         fill = pred.fill if pred.fill is not None else 1.0
