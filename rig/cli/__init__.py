@@ -1,7 +1,7 @@
 """The `rig` command line: one parser builds every command.
 
 The commands live by what they do: `acquire` (demo, run, simulate, import), `analyse` (fit,
-compare, diagnose) and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
+compare, diagnose), `export` and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
 Each module's `register` adds its sub-commands; a new command goes into one of them (or a new
 module registered here) with its arguments and a `cmd_*` function.
 """
@@ -21,7 +21,7 @@ one_blas_thread()  # before anything imports numpy (rig/blas_threads.py says why
 
 from drivers.errors import DeviceError, FolderImportError
 
-from . import acquire, analyse, tools
+from . import acquire, analyse, export, tools
 from .options import add_verbosity
 from .usage import UsageError
 
@@ -40,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     acquire.register(sub)
     analyse.register(sub)
+    export.register(sub)
     tools.register(sub)
     for command in sub.choices.values():
         add_verbosity(command, top=False)

@@ -78,6 +78,24 @@ class Model:
     def predict(self, values: Mapping[str, float], d: ModelData, tangents: Tangents | None = None) -> Prediction:
         """The prediction with parameter `values` (by qualified name); each effect gets its own (`Effect.own`). Given
         `tangents` (`rig.models.tangents`), their derivatives are carried through every stage as well."""
+        pred = self.predict_noise(values, d, tangents)
+        range_transform(pred, d, tangents)
+        for e in self.effects:
+            if e.stage > EffectStage.CENSOR:
+                self._stage(e, e.own(values), pred, d, tangents)
+        return pred
+
+    @staticmethod
+    def _stage(e: Effect, p: Any, pred: Prediction, d: ModelData, t: Tangents | None) -> None:
+        if t is None:
+            e.apply(pred, p, d)
+        else:
+            e.apply_tangent(pred, p, d, t)
+
+    def predict_noise(self, values: Mapping[str, float], d: ModelData, tangents: Tangents | None = None) -> Prediction:
+        """The prediction up to the camera's censoring: the noise of a depth sample before the depth file (its
+        format's end, the curvature of Z = f b / d, the depth unit's rounding) and before outliers and the tails'
+        shapes. What `rig export` writes and `rig.noise_model` evaluates (docs/noise-model.md)."""
         t = tangents
         own = [e.own(values) for e in self.effects]
         pred = Prediction(self.base.shot(values, d), np.ones(len(d)), np.zeros(len(d)))
@@ -85,10 +103,7 @@ class Model:
             t.shot = self.base.shot_tangent(values, d, pred.shot_m2, t)
 
         def stage(e: Effect, p: Any) -> None:
-            if t is None:
-                e.apply(pred, p, d)
-            else:
-                e.apply_tangent(pred, p, d, t)
+            self._stage(e, p, pred, d, t)
 
         for e, p in zip(self.effects, own):
             if e.stage < EffectStage.DISPARITY:
@@ -100,10 +115,6 @@ class Model:
                          scale(t.image, pred.shot_m2 * pred.illum))
         for e, p in zip(self.effects, own):
             if EffectStage.DISPARITY <= e.stage <= EffectStage.CENSOR:
-                stage(e, p)
-        range_transform(pred, d, t)
-        for e, p in zip(self.effects, own):
-            if e.stage > EffectStage.CENSOR:
                 stage(e, p)
         return pred
 

@@ -1,0 +1,83 @@
+"""`rig export`: a fitted model as a file other programs evaluate (docs/noise-model.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .options import refuse_unwritable
+from .usage import UsageError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from .analyse import _shared_options, _window_options
+
+    p = sub.add_parser("export", parents=[_shared_options(), _window_options()],
+                       help="fit a model and write it as a file other programs evaluate (docs/noise-model.md)")
+    p.add_argument("--model", help="the model to fit and export (default: the paper's power law, as rig fit)")
+    p.add_argument("-o", "--out", help="the model file to write (default: RECORDING-noise-model.json)")
+    p.add_argument("--sigma-map", metavar="Z1,Z2,...", help="also write per-pixel sigma images at these ranges (m): "
+                                                            "OUT.sigma-map.npy and OUT.sigma-map.png")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from protocols.recording import Recording
+
+    from ..diagnosis import headline
+    from ..models.prediction import EffectStage
+    from ..models.progress import ProgressCounter
+    from ..noise_model import TERMS, NoiseModel
+    from ..reports.noise_model_file import noise_model_document
+    from ..reports.sigma_map import map_problem, parse_ranges, write_sigma_maps
+    from .analyse import _check_window, _model_data, _parse_model, catalogue_of, progress_line
+
+    _check_window(args)
+    out = Path(args.out) if args.out else Path(args.recording).with_name(Path(args.recording).stem + "-noise-model.json")
+    refuse_unwritable(out, "--out")
+    try:
+        ranges = parse_ranges(args.sigma_map) if args.sigma_map else None
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    model = _parse_model(args.model, catalogue_of(args)) if args.model else None
+    if ranges is not None and model is not None:  # before the work: a map needs inputs per pixel some terms do not have
+        unknown = [e.name for e in model.effects if e.stage <= EffectStage.CENSOR and e.name not in TERMS]
+        problem = (f"the model has effects rig.noise_model cannot evaluate ({', '.join(unknown)})" if unknown else
+                   map_problem([n for e in model.effects if e.stage <= EffectStage.CENSOR for n in TERMS[e.name]]))
+        if problem:
+            raise UsageError(f"--sigma-map: {problem}")
+    with progress_line(args, "rig export") as progress:
+        counter = ProgressCounter(progress, 4)
+        if model is None:
+            from ..analysis import fit_recording
+
+            try:
+                r = fit_recording(args.recording, z_min_m=args.z_min, z_max_m=args.z_max, counter=counter)
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+            fit, d, notes = r.fit, r.samples.positive_variance(), r.notes
+        else:
+            counter.step("reading the recording")
+            d, notes = _model_data(args.recording, args.z_min, args.z_max)
+            counter.step(f"fitting {model.name}")
+            try:
+                fit = model.fit(d)
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+        counter.step("headline error: where the model is valid")
+        h = headline(fit, d)
+        counter.finish()
+        with Recording(args.recording) as rec:
+            doc = noise_model_document(fit, d, rec, args.recording, h, notes)
+    out.write_text(json.dumps(doc, indent=1) + "\n")
+    stream = sys.stderr if args.json else sys.stdout
+    if args.json:
+        print(json.dumps(doc, indent=1))
+    print(f"model: {out} ({doc['model']}; sigma valid for Z {doc['valid']['z_m'][0]:.3f}-{doc['valid']['z_m'][1]:.3f} m, "
+          f"headline error there {h.error_pct:.2f} %)", file=stream)
+    if ranges is not None:
+        npy, png = write_sigma_maps(NoiseModel.from_dict(doc, str(out)), ranges, out.with_name(out.stem + ".sigma-map"))
+        print(f"sigma maps: {npy} and {png}", file=stream)
+    return 0

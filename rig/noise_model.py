@@ -1,0 +1,210 @@
+"""Evaluate a noise model that `rig export` wrote (docs/noise-model.md), with numpy as the only dependency.
+
+    from rig.noise_model import NoiseModel            # or copy this one file into your project
+    model = NoiseModel.load("camera-noise.json")
+    sigma_m = model.sigma(z_m, u_px, v_px)            # any shapes that broadcast together
+    sigma_m, se_m = model.sigma(z_m, u_px, v_px, with_error=True)
+
+sigma is the standard deviation of one depth sample at true range z_m (m) in pixel (u_px, v_px), as the fitted model
+predicts it before the depth file: before the rounding to the depth unit and the outliers, which the file lists
+apart (docs/noise-model.md, "After sigma"). Terms that need more than (z, u, v) name their input, and refuse to run
+without it: `cos_incidence` (incidence, empirical(incidence)), `ir_dn` (empirical(brightness)), `ambient_ratio`
+(ambient), `drift_var_m2` (drift). The standard error is the delta method over the file's covariance.
+
+This module imports numpy, json and math, and nothing of rig: it is the reference a C++ or ROS port is checked
+against (the formulas: docs/noise-model.md; rig's own prediction: `rig.models.Model.predict_noise`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCHEMA = "rig.noise-model/1"
+#: the terms of sigma this evaluator knows, each with the inputs beyond (z, u, v) it needs
+TERMS = {"slant_range": (), "incidence": ("cos_incidence",), "read_noise": (), "ambient": ("ambient_ratio",),
+         "noise_floor": (), "drift": ("drift_var_m2",), "censoring": (), "empirical(range)": (),
+         "empirical(radius)": (), "empirical(slant)": (), "empirical(brightness)": ("ir_dn",),
+         "empirical(incidence)": ("cos_incidence",), "empirical(position)": ()}
+
+
+class NoiseModelError(ValueError):
+    """A file this evaluator cannot use, or an input a term needs and did not get: one line, naming the fix."""
+
+
+_erf = np.vectorize(math.erf, otypes=[float])
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """An exported model: `doc` is the file's JSON (docs/noise-model.schema.json)."""
+
+    doc: dict[str, Any]
+    source: str = "<dict>"
+
+    @classmethod
+    def load(cls, path: str | Path) -> "NoiseModel":
+        try:
+            doc = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as e:
+            raise NoiseModelError(f"cannot read the noise model {path}: {e}; give a file that rig export wrote") from None
+        return cls.from_dict(doc, str(path))
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any], source: str = "<dict>") -> "NoiseModel":
+        if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+            found = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
+            raise NoiseModelError(f"{source} is not a {SCHEMA} file (schema: {found!r}); export the model with rig export")
+        for term in doc["sigma_terms"]:
+            if term["effect"] not in TERMS:
+                where = f" (from {term['user_file']})" if term.get("user_file") else ""
+                raise NoiseModelError(f"{source}: sigma has the term {term['effect']!r}{where}, which this evaluator "
+                                      f"does not know; evaluate it with rig (rig.models), or export a model without it")
+        return cls(doc, source)
+
+    # -- what the file holds ---------------------------------------------------------------------
+    @property
+    def values(self) -> dict[str, float]:
+        """Every parameter's fitted value, by qualified name ("k", "lambda", "noise_floor.sigma_px", ...)."""
+        return {p["name"]: float(p["value"]) for p in self.doc["parameters"]}
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """The inputs beyond (z_m, u_px, v_px) that `sigma` needs for this model."""
+        return tuple(dict.fromkeys(n for t in self.doc["sigma_terms"] for n in TERMS[t["effect"]]))
+
+    def valid(self, z_m: Any, u_px: Any, v_px: Any) -> np.ndarray:
+        """True where (z, u, v) lies within what the fitted data covered (`valid` in the file)."""
+        v = self.doc["valid"]
+        z, u, w = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (z_m, u_px, v_px)))
+        return ((v["z_m"][0] <= z) & (z <= v["z_m"][1]) & (v["u_px"][0] <= u) & (u <= v["u_px"][1])
+                & (v["v_px"][0] <= w) & (w <= v["v_px"][1]))
+
+    # -- sigma -----------------------------------------------------------------------------------
+    def sigma(self, z_m: Any, u_px: Any, v_px: Any, *, with_error: bool = False,
+              **inputs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """sigma of a depth sample, m, at true range z_m and pixel (u_px, v_px); with `with_error`, also its standard
+        error (the delta method: sqrt(g' C g), g the derivative over the free parameters, C their covariance)."""
+        var = self.variance(z_m, u_px, v_px, **inputs)
+        sigma = np.sqrt(var)
+        if not with_error:
+            return sigma
+        cov = self.doc["covariance"]
+        names, c = cov["parameters"], np.array(cov["matrix"], dtype=float).reshape(len(cov["parameters"]), -1)
+        values = self.values
+        grads = []
+        for i, name in enumerate(names):
+            h = 1e-4 * math.sqrt(c[i, i]) if c[i, i] > 0 else 1e-7 * max(abs(values[name]), 1e-12)
+            up, down = dict(values), dict(values)
+            up[name] += h
+            down[name] -= h
+            dvar = (self.variance(z_m, u_px, v_px, values=up, **inputs)
+                    - self.variance(z_m, u_px, v_px, values=down, **inputs)) / (2 * h)
+            grads.append(dvar / (2 * sigma))
+        if not grads:
+            return sigma, np.zeros_like(sigma)
+        g = np.stack(grads)
+        se = np.sqrt(np.maximum(np.einsum("i...,ij,j...->...", g, c, g), 0.0))
+        return sigma, se
+
+    def variance(self, z_m: Any, u_px: Any, v_px: Any, *, values: dict[str, float] | None = None,
+                 **inputs: Any) -> np.ndarray:
+        """sigma^2, m^2: the stages of docs/noise-model.md in order (base, illumination, image noise, disparity,
+        drift, empirical shapes, censoring); `values` replaces the file's parameter values."""
+        p = self.values if values is None else values
+        missing = [n for n in self.inputs if inputs.get(n) is None]
+        if missing:
+            raise NoiseModelError(f"{self.source}: the model's terms need {', '.join(missing)} as well as (z, u, v); "
+                                  f"pass {', '.join(f'{n}=...' for n in missing)} to sigma()")
+        unknown = set(inputs) - set(self.inputs)
+        if unknown:
+            raise NoiseModelError(f"{self.source}: this model takes no {', '.join(sorted(unknown))}; "
+                                  f"its inputs are z_m, u_px, v_px{''.join(', ' + n for n in self.inputs)}")
+        arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (z_m, u_px, v_px, *inputs.values())))
+        z, u, v = arrays[:3]
+        given = dict(zip(inputs, arrays[3:]))
+        cam = self.doc["camera"]
+        k = cam["intrinsics"]
+        x, y = (u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"]
+        rho2 = x * x + y * y
+        fb = cam["fb_px_m"]
+        on = bool(self.doc["settings"]["projector_on"])
+        shot = p["k"] ** 2 * np.exp(2.0 * p["lambda"] * np.log(z))  # k^2 Z^(2 lambda) (paper, eq. error_prop_*)
+        illum, image = np.ones_like(z), np.zeros_like(z)
+        terms = self.doc["sigma_terms"]
+        for t in terms:
+            name = t["effect"]
+            if name == "slant_range" and on:  # light falls with the slant range: 1 + rho^2
+                illum = illum * (1.0 + rho2)
+            elif name == "incidence" and on:  # a matte wall returns cos(incidence)
+                illum = illum / np.clip(given["cos_incidence"], 0.05, 1.0)
+        for t in terms:
+            name = t["effect"]
+            if name == "read_noise" and on:  # read noise against the pattern's light: r Z^2 (light loss)
+                image = image + p["read_noise.ratio_at_1m"] * z**2 * illum
+            elif name == "ambient":  # ambient / pattern brightness, measured
+                a = given["ambient_ratio"]
+                image = image + np.where(np.isfinite(a) & on, a, 0.0)
+        var = shot * illum * (1.0 + image)
+        for t in terms:
+            name = t["effect"]
+            if name == "noise_floor":  # (Z^2 / (f b))^2 sigma_px^2 (eq. error_prop_unassisted)
+                var = var + (z**2 / fb) ** 2 * p["noise_floor.sigma_px"] ** 2
+            elif name == "drift":
+                var = var + given["drift_var_m2"]
+        for t in terms:
+            if t["effect"] == "empirical(position)":
+                q = {n: p[f"empirical(position).{n}"] for n in ("a_x", "a_y", "a_xx", "a_xy", "a_yy")}
+                var = var * np.exp(2.0 * (q["a_x"] * x + q["a_y"] * y + q["a_xx"] * x * x + q["a_xy"] * x * y
+                                          + q["a_yy"] * y * y))
+            elif t["effect"].startswith("empirical("):
+                var = var * np.exp(2.0 * _shape(t, p, _covariate(t["covariate"], z, rho2, given)))
+        for t in terms:
+            if t["effect"] == "censoring":  # the disparity error truncated at +-T: var *= E[x^2 | |x| < c]
+                c = p["censoring.threshold_px"] / (np.sqrt(var) * fb / z**2)
+                kept = np.maximum(_erf(c / math.sqrt(2.0)), 1e-300)
+                phi = np.exp(-0.5 * c * c) / math.sqrt(2 * math.pi)
+                var = var * (1.0 - 2.0 * c * phi / kept)
+        return var
+
+
+def _covariate(name: str, z: np.ndarray, rho2: np.ndarray, given: dict[str, np.ndarray]) -> np.ndarray:
+    """The covariate an empirical shape follows (docs/noise-model.md, "Empirical shapes")."""
+    if name == "range":
+        return z
+    if name == "radius":
+        return np.sqrt(rho2)
+    if name == "slant":
+        return z * np.sqrt(1.0 + rho2)
+    if name == "brightness":
+        return given["ir_dn"]
+    return np.degrees(np.arccos(np.clip(given["cos_incidence"], -1.0, 1.0)))  # incidence, deg
+
+
+def _shape(t: dict[str, Any], p: dict[str, float], c: np.ndarray) -> np.ndarray:
+    """g(c): the cubic Hermite curve through (knots, values) with the file's slopes, flat beyond the end knots, over
+    ln c for a log axis; 0 where c is not defined. The slopes move with the values by the file's Jacobian (exact at
+    the fitted values, to first order beside them, which is all the standard error uses)."""
+    knots = np.array(t["knots_axis"], dtype=float)
+    names = t["knot_parameters"]
+    g = np.array([0.0 if n is None else p[n] for n in names])
+    g0 = np.array([0.0 if n is None else t["knot_values"][i] for i, n in enumerate(names)])
+    slopes = np.array(t["slopes"], dtype=float) + np.array(t["slopes_jacobian"], dtype=float) @ (g - g0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        axis = np.where(c > 0, np.log(c), np.nan) if t["axis"] == "log" else np.asarray(c, dtype=float)
+    ok = np.isfinite(axis)
+    if len(knots) < 3:
+        return np.where(ok, np.interp(np.clip(np.nan_to_num(axis), knots[0], knots[-1]), knots, g), 0.0)
+    xa = np.clip(np.nan_to_num(axis), knots[0], knots[-1])
+    i = np.clip(np.searchsorted(knots, xa, side="right") - 1, 0, len(knots) - 2)
+    h = np.diff(knots)[i]
+    s = (xa - knots[i]) / h
+    s2, s3 = s * s, s * s * s
+    out = ((2 * s3 - 3 * s2 + 1) * g[i] + (s3 - 2 * s2 + s) * h * slopes[i] + (3 * s2 - 2 * s3) * g[i + 1]
+           + (s3 - s2) * h * slopes[i + 1])
+    return np.where(ok, out, 0.0)

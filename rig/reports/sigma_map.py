@@ -1,0 +1,72 @@
+"""Per-pixel sigma images of an exported model (`rig export --sigma-map 0.5,1,2`): a `.npy` stack and a PNG.
+
+Each image is the model's sigma (`rig.noise_model.NoiseModel.sigma`) at every pixel of the depth image for a wall
+perpendicular to the optical axis at one range Z: there a pixel's ray meets the wall at the angle whose cosine is
+1 / sqrt(1 + rho^2), which is what incidence terms get. A model whose terms need a measured input per pixel
+(brightness, ambient light, drift) has no map without it: one line says so.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..noise_model import NoiseModel
+
+#: inputs a map over a perpendicular wall can supply itself
+MAP_INPUTS = ("cos_incidence",)
+
+
+def parse_ranges(text: str) -> list[float]:
+    """"0.5,1,2" -> [0.5, 1.0, 2.0]; a ValueError naming the option and the fix otherwise."""
+    try:
+        z = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        z = []
+    if not z or not all(np.isfinite(v) and v > 0 for v in z):
+        raise ValueError(f"--sigma-map {text!r}: give ranges in metres, comma-separated and above 0, e.g. --sigma-map 0.5,1,2")
+    return z
+
+
+def map_problem(inputs: tuple[str, ...] | list[str]) -> str | None:
+    """Why a model whose terms need `inputs` (`NoiseModel.inputs`) has no sigma map, or None."""
+    missing = [n for n in inputs if n not in MAP_INPUTS]
+    if missing:
+        return (f"the model's terms need {', '.join(missing)} at each pixel, which a map over a wall does not have; "
+                f"export a model without them, or evaluate sigma with your own {', '.join(missing)} (rig.noise_model)")
+    return None
+
+
+def sigma_maps(model: NoiseModel, ranges_m: list[float]) -> np.ndarray:
+    """sigma, m, as (len(ranges_m), height, width) over the depth image, a perpendicular wall at each range."""
+    k = model.doc["camera"]["intrinsics"]
+    v, u = np.mgrid[0:k["height"], 0:k["width"]].astype(float)
+    rho2 = ((u - k["cx"]) / k["fx"]) ** 2 + ((v - k["cy"]) / k["fy"]) ** 2
+    extra = {"cos_incidence": 1.0 / np.sqrt(1.0 + rho2)} if "cos_incidence" in model.inputs else {}
+    return np.stack([model.sigma(np.full(u.shape, z), u, v, **extra) for z in ranges_m])
+
+
+def write_sigma_maps(model: NoiseModel, ranges_m: list[float], out_stem: Path) -> tuple[Path, Path]:
+    """Write OUT_STEM.npy (sigma in m, ranges x rows x columns) and OUT_STEM.png (one panel a range, in mm, each with
+    its colour bar); return both paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    maps = sigma_maps(model, ranges_m)
+    npy, png = out_stem.with_name(out_stem.name + ".npy"), out_stem.with_name(out_stem.name + ".png")
+    np.save(npy, maps)
+    fig, axes = plt.subplots(1, len(ranges_m), figsize=(4.2 * len(ranges_m), 3.2), squeeze=False)
+    for ax, z, image in zip(axes[0], ranges_m, maps):
+        shown = ax.imshow(image * 1e3, cmap="viridis", origin="upper")
+        ax.set_title(f"Z = {z:g} m")
+        ax.set_xlabel("u (px)")
+        ax.set_ylabel("v (px)")
+        fig.colorbar(shown, ax=ax, label="sigma (mm)", shrink=0.85)
+    fig.suptitle(f"{model.doc['model']}: sigma of a depth sample, a wall perpendicular to the axis", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return npy, png
