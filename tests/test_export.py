@@ -1,0 +1,197 @@
+"""`rig export` and the evaluator beside it (rig/noise_model.py, docs/noise-model.md).
+
+The evaluator is a second, numpy-only implementation of sigma: it must give rig's own prediction
+(`Model.predict_noise`) on every pixel-stop of a recording to 1e-9, for every term it knows, and its standard error
+must be the delta method of rig's analytic derivatives (`rig.models.tangents`). The file is checked against
+docs/noise-model.schema.json by jsonschema, the reference validator, not by code of ours.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from cli_in_process import rig_in_process
+from protocols.recording import Recording
+
+from rig.models import load_samples, parse_model
+from rig.models.result import ModelFit
+from rig.models.tangents import Tangents
+from rig.noise_model import TERMS, NoiseModel, NoiseModelError
+from rig.reports.noise_model_file import noise_model_document
+
+ROOT = Path(__file__).resolve().parents[1]
+SCHEMA = json.loads((ROOT / "docs" / "noise-model.schema.json").read_text())
+#: every term of sigma the evaluator knows, over three models (a term appears once per model)
+MODELS = ["power_law+slant_range+incidence+read_noise+noise_floor+empirical(radius)+empirical(position)+censoring",
+          "active+ambient+drift+empirical(range)+empirical(brightness)+empirical(incidence)",
+          "passive+noise_floor+empirical(slant)+outliers+quantization+empirical(tails)"]
+
+
+def test_the_models_cover_every_term_the_evaluator_knows():
+    named = {e.name for spec in MODELS for e in parse_model(spec).effects}
+    assert set(TERMS) <= named
+
+
+def _data(path: Path):
+    """The recording's pixel-stops, with the true range set to the measured mean (the evaluator's z is the true
+    range; rig's models estimate it from the neighbours' variance) and the measured inputs made to vary."""
+    with Recording(path) as rec:
+        d = load_samples(rec).positive_variance()
+    d.__dict__["z0_m"] = d.z_m
+    rng = np.random.default_rng(7)
+    d.ambient_ratio = rng.uniform(0.0, 0.5, len(d))
+    d.drift_var_m2 = rng.uniform(0.0, 1e-8, len(d))
+    d.cos_inc = rng.uniform(0.01, 1.0, len(d))  # a perpendicular wall's are all near 1: reach the clip at 0.05 too
+    assert np.isfinite(d.ir).mean() > 0.9
+    return d
+
+
+def _fit_with(model, d, seed: int) -> ModelFit:
+    """A ModelFit of `model` at values drawn near its starts (not fitted: the formulas, not the fit, are compared),
+    with a random covariance."""
+    rng = np.random.default_rng(seed)
+    values = {n: p.value for n, p in model.parameters()}
+    for e in model.effects:  # the empirical shapes' knots, and the censoring's starting cut, come from the data
+        values.update({f"{e.name}.{k}": v for k, v in e.start(d, model.predict_noise(values, d)).items()})
+    for n, _ in model.free():
+        if n.startswith("empirical"):
+            values[n] = float(rng.normal(0.0, 0.3))
+    values["k"] *= 1.1
+    names = [n for n, _ in model.free()]
+    a = rng.normal(size=(len(names), len(names))) * 1e-3
+    return ModelFit(model, values, {n: 1e-3 for n in names}, 0.0, len(d), int(d.n.sum()), covariance=a @ a.T + 1e-9 * np.eye(len(names)))
+
+
+def _inputs(evaluator: NoiseModel, d) -> dict[str, np.ndarray]:
+    known = {"cos_incidence": d.cos_inc, "ir_dn": d.ir, "ambient_ratio": d.ambient_ratio, "drift_var_m2": d.drift_var_m2}
+    return {n: known[n] for n in evaluator.inputs}
+
+
+@pytest.mark.parametrize("spec", MODELS)
+def test_the_evaluator_gives_rigs_sigma_and_its_error_on_every_pixel_stop(small_recording, spec):
+    d = _data(small_recording)
+    model = parse_model(spec)
+    fit = _fit_with(model, d, seed=len(spec))
+    with Recording(small_recording) as rec:
+        doc = json.loads(json.dumps(noise_model_document(fit, d, rec, small_recording)))  # as a file holds it
+    jsonschema.validate(doc, SCHEMA)
+    evaluator = NoiseModel.from_dict(doc)
+    names = [n for n, _ in model.free()]
+    t = Tangents(names, len(d))
+    pred = model.predict_noise(fit.values, d, t)
+    sigma, se = evaluator.sigma(d.z_m, d.u_px, d.v_px, with_error=True, **_inputs(evaluator, d))
+    assert len(d) > 500
+    np.testing.assert_allclose(sigma, np.sqrt(pred.var_m2), rtol=1e-9, atol=0)
+    g = t.var / (2.0 * np.sqrt(pred.var_m2))  # d sigma / d theta, analytic
+    se_rig = np.sqrt(np.einsum("in,ij,jn->n", g, fit.covariance, g))
+    np.testing.assert_allclose(se, se_rig, rtol=1e-5)
+    assert np.all(se > 0)
+
+
+def test_rig_export_writes_a_valid_file_whose_sigma_is_the_fits_own(small_recording, tmp_path):
+    out = tmp_path / "camera-noise.json"
+    r = rig_in_process("export", small_recording, "--model", "active+slant_range+empirical(radius)", "-o", out,
+                       "--sigma-map", "0.5,1,2", "--jobs", "1", "-q")
+    assert r.returncode == 0, r.stderr
+    assert f"model: {out}" in r.stdout and "sigma maps:" in r.stdout
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
+    assert doc["model"] == "active+slant_range+empirical(radius)"
+    assert [t["kind"] for t in doc["sigma_terms"]] == ["physical", "empirical"]
+    assert any("empirical shape" in n for n in doc["notes"])
+    with Recording(small_recording) as rec:
+        cal = rec.calibration
+    assert doc["camera"]["intrinsics"]["fx"] == cal.fx and doc["camera"]["depth_unit_m"] == cal.depth_scale_m
+    assert doc["valid"]["z_m"][0] < 0.55 and doc["valid"]["z_m"][1] > 1.95
+    # the fitted values, put back into rig's model, give the evaluator's sigma on every pixel-stop
+    d = _data(small_recording)
+    model = parse_model(doc["model"])
+    shape = model.effects[-1]
+    shape.knots = np.array(doc["sigma_terms"][1]["knots"])
+    values = {p["name"]: p["value"] for p in doc["parameters"]}
+    evaluator = NoiseModel.load(out)
+    np.testing.assert_allclose(evaluator.sigma(d.z_m, d.u_px, d.v_px), np.sqrt(model.predict_noise(values, d).var_m2),
+                               rtol=1e-9, atol=0)
+    # the errors the file gives are the fit's own
+    errors = {p["name"]: p["error"] for p in doc["parameters"] if p["free"]}
+    c = np.array(doc["covariance"]["matrix"])
+    assert np.allclose(np.sqrt(np.diag(c)), [errors[n] for n in doc["covariance"]["parameters"]], rtol=1e-9)
+    maps = np.load(tmp_path / "camera-noise.sigma-map.npy")
+    assert maps.shape == (3, cal.height, cal.width)
+    assert np.all(np.diff(maps[:, cal.height // 2, cal.width // 2]) > 0)  # sigma grows with range at the centre
+    u = np.arange(cal.width, dtype=float)
+    row = evaluator.sigma(np.full(cal.width, 1.0), u, np.full(cal.width, 3.0))
+    np.testing.assert_allclose(maps[1, 3], row, rtol=1e-12)
+    assert (tmp_path / "camera-noise.sigma-map.png").stat().st_size > 5000
+
+
+def test_the_evaluator_runs_with_numpy_alone_in_a_ten_line_script(small_recording, tmp_path):
+    """The file copied out of rig into a folder of its own and imported from there: it loads nothing of rig, scipy,
+    numba or h5py (rig is installed in this interpreter, so an import of it would succeed and show)."""
+    out = tmp_path / "model.json"
+    assert rig_in_process("export", small_recording, "-o", out, "-q").returncode == 0
+    shutil.copy(ROOT / "rig" / "noise_model.py", tmp_path / "noise_model.py")
+    script = (
+        "import sys\n"
+        "from noise_model import NoiseModel\n"
+        "m = NoiseModel.load(sys.argv[1])\n"
+        "s, se = m.sigma([0.5, 1.0, 2.0], 16.0, 9.0, with_error=True)\n"
+        "print(*s, *se)\n"
+        "print(sorted(k.split('.')[0] for k in sys.modules if k.split('.')[0] in ('rig', 'scipy', 'numba', 'h5py')))\n")
+    r = subprocess.run([sys.executable, "-E", "-s", "-c", script, str(out)], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    numbers, loaded = r.stdout.splitlines()
+    assert loaded == "[]"
+    s = np.array(numbers.split(), dtype=float)
+    doc = json.loads(out.read_text())
+    k, lam = (next(p["value"] for p in doc["parameters"] if p["name"] == n) for n in ("k", "lambda"))
+    np.testing.assert_allclose(s[:3], k * np.array([0.5, 1.0, 2.0]) ** lam, rtol=1e-12)  # the paper's model: k Z^lambda
+    assert np.all(s[3:] > 0) and np.all(s[3:] < 0.05 * s[:3])
+
+
+def test_what_the_evaluator_cannot_do_is_one_line_naming_the_fix(small_recording, tmp_path):
+    d = _data(small_recording)
+    model = parse_model("active+empirical(brightness)")
+    with Recording(small_recording) as rec:
+        doc = noise_model_document(_fit_with(model, d, 3), d, rec, small_recording)
+    m = NoiseModel.from_dict(doc, "cam.json")
+    with pytest.raises(NoiseModelError, match=r"need ir_dn as well as \(z, u, v\); pass ir_dn=\.\.\. to sigma\(\)"):
+        m.sigma(1.0, 10.0, 5.0)
+    with pytest.raises(NoiseModelError, match="takes no cos_incidence"):
+        m.sigma(1.0, 10.0, 5.0, ir_dn=80.0, cos_incidence=1.0)
+    user = dict(doc, sigma_terms=[*doc["sigma_terms"], {"effect": "beam_falloff", "stage": 10, "kind": "user",
+                                                        "parameters": ["beam_falloff.n"], "user_file": "beam.py"}])
+    with pytest.raises(NoiseModelError, match=r"'beam_falloff' \(from beam.py\), which this evaluator does not know"):
+        NoiseModel.from_dict(user, "cam.json")
+    with pytest.raises(NoiseModelError, match="not a rig.noise-model/1 file"):
+        NoiseModel.from_dict({"schema": "rig.result/1"})
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(NoiseModelError, match="cannot read the noise model"):
+        NoiseModel.load(tmp_path / "bad.json")
+    r = rig_in_process("export", small_recording, "--model", "active+empirical(brightness)", "--sigma-map", "1",
+                       "-o", tmp_path / "m.json")
+    assert r.returncode == 2 and not (tmp_path / "m.json").exists()  # refused before the fit
+    assert r.stderr.count("\n") == 1 and "--sigma-map: the model's terms need ir_dn at each pixel" in r.stderr
+    r = rig_in_process("export", small_recording, "--sigma-map", "1,x", "-o", tmp_path / "m.json")
+    assert r.returncode == 2 and "give ranges in metres" in r.stderr
+
+
+def test_the_docs_example_runs_as_written(small_recording, tmp_path, monkeypatch):
+    """docs/noise-model.md's Python block, on a file rig export wrote, in a folder of its own."""
+    text = (ROOT / "docs" / "noise-model.md").read_text()
+    block = text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert rig_in_process("export", small_recording, "--model", "active+slant_range+noise_floor",
+                          "-o", tmp_path / "camera-noise.json", "-q").returncode == 0
+    monkeypatch.chdir(tmp_path)
+    r = subprocess.run([sys.executable, "-c", block], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "mm +/-" in lines[0] and lines[2] == "()"
+    assert lines[1] == "[False False False]"  # this recording is 32 px wide: the example's pixels lie outside it
