@@ -49,6 +49,12 @@ FAKE_CAMERA_OPTIONS = OptionTable("fake", "camera", (
     Option("ir_gain", float, 1.0, _NUMBER, "", "IR image gain (DN per photo-electron times this): above about 2, the "
            "10-bit IR clips at 1023 near the wall with the projector on, as real IR images saturate at short range",
            example=4),
+    Option("warmup_sd", float, 0.0, between(0, 1), "", "run to run: the light's level differs by this fraction "
+           "(a standard deviation) from one seed to the next, as a camera not yet warm does; k varies with it",
+           example=0.05, absent="0: every run alike"),
+    Option("room_light_sd", float, 0.0, between(0, 1), "", "run to run: the room light on the wall differs by this "
+           "fraction (a standard deviation) from one seed to the next, as daylight through a window does; with light=day "
+           "and the projector on, lambda varies with it", example=0.3, absent="0: every run alike"),
 ), error=CameraError)
 
 
@@ -93,6 +99,8 @@ class FakeCamera(DepthCamera):
         duplicate: float = 0.0,
         temporal_alpha: float | None = None,
         ir_gain: float = 1.0,
+        warmup_sd: float = 0.0,
+        room_light_sd: float = 0.0,
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -107,7 +115,13 @@ class FakeCamera(DepthCamera):
         self.baseline_m = baseline_m
         self.depth_scale_m = depth_scale_m
         self.fps = fps
-        self.physics = physics or SensorPhysics()
+        # run-to-run variation, drawn once per seed from a stream of its own (the depth noise of a seed stays the same)
+        run_rng = np.random.default_rng(seed + 15485863)
+        level, room = (float(np.exp(run_rng.normal(0.0, sd))) for sd in (warmup_sd, room_light_sd))
+        self.warmup_sd, self.room_light_sd = warmup_sd, room_light_sd
+        physics = physics or SensorPhysics()
+        self.physics = replace(physics, pattern_e_per_ms_at_1m=physics.pattern_e_per_ms_at_1m * level,
+                               texture_e_per_ms=physics.texture_e_per_ms * level * room)
         self.effects = list(effects or [])
         self.seed = seed
         self.fail_at_frame = fail_at_frame
@@ -165,6 +179,8 @@ class FakeCamera(DepthCamera):
             duplicate=o["duplicate"],
             temporal_alpha=o["temporal_alpha"],
             ir_gain=o["ir_gain"],
+            warmup_sd=o["warmup_sd"],
+            room_light_sd=o["room_light_sd"],
         )
 
     # -- lifecycle -------------------------------------------------------------------------

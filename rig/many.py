@@ -1,18 +1,20 @@
-"""The paper's fit of many recordings at once (`rig fit --many DIR`): a lab characterising a shelf of cameras.
+"""The fits of many recordings at once: the paper's (`rig fit --many DIR`, a lab characterising a shelf of cameras)
+and one model's for a comparison (`rig compare a.h5 b.h5`, `rig repeatability`: `fit_for_comparison`).
 
 Each recording is read and fitted in a worker process of a pool (one per core by default), and reported
 as it finishes; a recording that cannot be fitted is reported with its one-line reason and the others go on.
-The work of one recording is independent of the others', so the same function runs unchanged on an engine
-that spreads it over machines (docs/performance.md, "Scale").
+The work of one recording is independent of the others', so the same function runs unchanged on a Dask cluster
+(`rig.executors`: --scheduler, or RIG_SCHEDULER; docs/performance.md, "Past one machine").
 """
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
+
+from .executors import run_each
+from .recording_fits import PAPER, FitJob, RecordingResult, model_for, summarise
 
 
 @dataclass
@@ -53,14 +55,48 @@ def fit_one(path: Path) -> ManyRow:
     return ManyRow(path, r.fit.k, r.fit.se_k, r.fit.lam, r.fit.se_lam, h.error_pct, h.verdict(), r.fit.n_obs, document=doc)
 
 
-def fit_many(paths: list[Path], jobs: int | None = None) -> Iterator[ManyRow]:
-    """Fit every recording, `jobs` at a time (default: one per core); rows come as recordings finish."""
-    jobs = max(1, jobs or os.cpu_count() or 1)
-    if jobs == 1 or len(paths) <= 1:
-        for p in paths:
-            yield fit_one(p)
-        return
-    with ProcessPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
-        futures = [pool.submit(fit_one, p) for p in paths]
-        for f in as_completed(futures):
-            yield f.result()
+def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None = None) -> Iterator[ManyRow]:
+    """Fit every recording, `jobs` at a time (default: one per core), or on the Dask cluster at `scheduler`
+    (`rig.executors`); rows come as recordings finish."""
+    yield from run_each(fit_one, paths, jobs=jobs, scheduler=scheduler)
+
+
+def fit_for_comparison(job: FitJob) -> RecordingResult:
+    """Fit `job.model` to the recording at `job.path` (in a worker: plain data back, errors as a one-line `error`)."""
+    from protocols.recording import RecordingError
+
+    try:
+        return _fit(job)
+    except (ValueError, RecordingError, OSError) as e:
+        return RecordingResult(job.path, error=str(e).splitlines()[0] if str(e) else type(e).__name__)
+
+
+def _fit(job: FitJob) -> RecordingResult:
+    from protocols.recording import Recording
+
+    from .analysis import fit_recording, in_window, recording_notes
+    from .diagnosis import headline
+    from .diagnosis.bins import pooled_sigma, sigma_by_range
+    from .models import Catalogue, load_samples
+
+    notes: list[str] = []
+    if job.model in (None, PAPER):
+        r = fit_recording(job.path, z_min_m=job.z_min_m, z_max_m=job.z_max_m)
+        fit, d, notes, on = r.fit, r.samples.positive_variance(), list(r.notes), r.projector_on
+        measured = r.measured
+    else:
+        with Recording(job.path) as rec:
+            d = in_window(load_samples(rec).positive_variance(), job.z_min_m, job.z_max_m)
+            notes = recording_notes(rec)
+            labels = rec.stop_labels()
+        on = bool(d.projector_on.any())
+        catalogue = Catalogue.default()
+        for f in job.effects:
+            catalogue = catalogue.with_file(f)
+        model, note = model_for(job.model, on, catalogue)
+        notes += [note] if note else []
+        fit = model.fit(d)
+        measured = pooled_sigma(d, d.stop, labels) if len(labels) > 1 else sigma_by_range(d)
+    h = headline(fit, d)
+    with Recording(job.path) as rec:
+        return summarise(job.path, fit, d, h, measured, rec, notes, on)

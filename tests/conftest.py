@@ -79,6 +79,7 @@ SLOW_TESTS = {
     "test_reliability.py": {"test_a_second_writer_is_refused_with_who_holds_the_file", "test_sigterm_ends_a_run_like_ctrl_c"},
     "test_rounding.py": {"test_shipped_table_is_what_the_sums_give"},
     "test_user_effects.py": {"test_the_effects_flag_on_fit_and_compare"},
+    "test_recordings_compared.py": {"test_a_fleet_on_a_dask_cluster_gives_what_the_local_pool_gives"},
 }
 
 

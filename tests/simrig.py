@@ -10,10 +10,14 @@ from rig.devices import open_devices
 
 
 def record_perpendicular(path: Path, *, seed: int = 0, width: int = 32, frames: int = 100, projector_on: bool = True,
-                         depth_unit_mm: float = 0.05, effects: str = "", stops_m=None, resume: bool = False, **plan_kw):
-    """Record a small perpendicular experiment; return (path, (k_true, lambda_true), devices)."""
+                         depth_unit_mm: float = 0.05, effects: str = "", stops_m=None, resume: bool = False,
+                         camera_options: str = "", **plan_kw):
+    """Record a small perpendicular experiment; return (path, (k_true, lambda_true), devices). `camera_options`: more of
+    the fake camera's device-string options, e.g. "warmup_sd=0.1,light=day"."""
     height = max(2, round(width * 480 / 848))
     cam = f"fake:width={width},height={height},depth_unit_mm={depth_unit_mm},seed={seed}"
+    if camera_options:
+        cam += f",{camera_options}"
     if effects:
         cam += f",effects={effects}"
     devices = open_devices(cam, "fake:")

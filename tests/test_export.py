@@ -24,7 +24,7 @@ from rig.models import load_samples, parse_model
 from rig.models.result import ModelFit
 from rig.models.tangents import Tangents
 from rig.noise_model import TERMS, NoiseModel, NoiseModelError
-from rig.reports.noise_model_file import noise_model_document
+from rig.models.export import noise_model_document
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "docs" / "noise-model.schema.json").read_text())

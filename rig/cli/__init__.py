@@ -1,7 +1,7 @@
 """The `rig` command line: one parser builds every command.
 
 The commands live by what they do: `acquire` (demo, run, simulate, import), `analyse` (fit,
-compare, diagnose), `export` and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
+compare, diagnose), `export`, `recordings` (repeatability; compare of several recordings) and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
 Each module's `register` adds its sub-commands; a new command goes into one of them (or a new
 module registered here) with its arguments and a `cmd_*` function.
 """
@@ -21,7 +21,7 @@ one_blas_thread()  # before anything imports numpy (rig/blas_threads.py says why
 
 from drivers.errors import DeviceError, FolderImportError
 
-from . import acquire, analyse, export, tools
+from . import acquire, analyse, export, recordings, tools
 from .options import add_verbosity
 from .usage import UsageError
 
@@ -41,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     acquire.register(sub)
     analyse.register(sub)
     export.register(sub)
+    recordings.register(sub)
     tools.register(sub)
     for command in sub.choices.values():
         add_verbosity(command, top=False)

@@ -3,34 +3,44 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from .memory import return_large_blocks_at_once
-from .options import EXIT_UNDETERMINED, refuse_unwritable, verbosity
+from .options import EXIT_UNDETERMINED, refuse_unwritable
+from .shared import (catalogue_of, check_window, model_data, parse_model_option, progress_line, shared_options,
+                     window_options)
 from .usage import UsageError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the analysis commands to the `rig` parser; what they share comes from the parents below."""
-    shared, window, held_out = _shared_options(), _window_options(), _held_out_options()
+    shared, window, held_out = shared_options(), window_options(), _held_out_options()
 
-    p = sub.add_parser("fit", parents=[shared, window, held_out], help="fit sigma_Z = k Z^lambda to a recording")
+    from .recordings import cluster_options
+
+    p = sub.add_parser("fit", parents=[shared, window, held_out, cluster_options()],
+                       help="fit sigma_Z = k Z^lambda to a recording")
     p.add_argument("--model", help="fit a composed model instead, e.g. active+slant_range+noise_floor")
     p.add_argument("--plot", metavar="FILE.png", help="write a sigma-vs-range plot here (any format matplotlib writes: "
                                                       ".png, .pdf, .svg, ...)")
     p.add_argument("--table", metavar="STOPS.csv", help="write the per-stop table here (range, pixels, samples, "
                                                        "measured and model sigma, fill rate; CSV)")
     p.add_argument("--many", action="store_true", help="RECORDING is a folder: fit every *.h5 in it, one process per "
-                                                       "core (--jobs), a line each (with --json: one document a line)")
+                                                       "core (--jobs) or on a Dask cluster (--scheduler), a line each "
+                                                       "(with --json: one document a line)")
+    p.add_argument("--report", metavar="DIR", help="also write fit.html (run, fit, plot) in DIR")
     p.set_defaults(func=cmd_fit)
 
-    p = sub.add_parser("compare", parents=[shared, window, held_out],
-                       help="fit several models and show their errors side by side")
-    p.add_argument("--models", required=True, help="comma-separated, e.g. active,active+slant_range")
+    p = sub.add_parser("compare", parents=[shared_options(several=True), window, held_out, cluster_options()],
+                       help="fit several models to one recording, or one model to several recordings, and compare")
+    p.add_argument("--models", help="one recording: the models to compare, comma-separated, e.g. active,active+slant_range")
+    p.add_argument("--model", help="several recordings: the model fitted to each (default: the paper's power law)")
+    p.add_argument("--plot", metavar="FILE.png", help="several recordings: the overlay of sigma against range "
+                                                      "(default: FIRST-compare.png beside the first recording)")
+    p.add_argument("--report", metavar="DIR", help="several recordings: also write compare.html and its plot in DIR")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("diagnose", parents=[shared], help="where the model fails and which physical effect is most likely missing")
@@ -39,67 +49,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_diagnose)
 
 
-def _shared_options() -> argparse.ArgumentParser:
-    """What fit, compare and diagnose all take: the recording, --json, --effects and --jobs."""
-    p = argparse.ArgumentParser(add_help=False)
-    p.add_argument("recording")
-    p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
-    p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
-                   help="load effects you wrote (a Python file using @effect; docs/effects.md); may be repeated")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                   help="processes for the work that runs in parallel: the held-out score's refits, --many, the "
-                        "diagnosis's candidate effects (default: one per core)")
-    return p
-
-
-def _window_options() -> argparse.ArgumentParser:
-    """The window of ranges to fit (fit, compare): --z-min, --z-max, in metres."""
-    p = argparse.ArgumentParser(add_help=False)
-    p.add_argument("--z-min", type=float, metavar="M", help="use only pixels with mean range >= this (m)")
-    p.add_argument("--z-max", type=float, metavar="M", help="use only pixels with mean range <= this (m)")
-    return p
-
-
 def _held_out_options() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--no-held-out", action="store_true", help="skip the leave-one-stop-out score (faster)")
     return p
-
-
-def catalogue_of(args: argparse.Namespace):
-    """The built-in effects, installed plugins' and those of every --effects file."""
-    from ..models import Catalogue
-
-    cat = Catalogue.default()
-    for path in getattr(args, "effects", []) or []:
-        cat = cat.with_file(path)
-    return cat
-
-
-def _model_data(path: str, z_min: float | None = None, z_max: float | None = None):
-    """(ModelData of the recording in the --z-min/--z-max window, its notes), from one opening of the file."""
-    from protocols.recording import Recording
-
-    from ..analysis import in_window, recording_notes
-    from ..models import load_samples
-
-    try:
-        with Recording(path) as rec:
-            d = load_samples(rec).positive_variance()
-            notes = recording_notes(rec)
-        return in_window(d, z_min, z_max), notes
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-
-
-def _check_window(args: argparse.Namespace) -> None:
-    """Refuse a --z-min/--z-max window that can hold no pixel, before the recording is read."""
-    from ..analysis import check_window
-
-    try:
-        check_window(getattr(args, "z_min", None), getattr(args, "z_max", None))
-    except ValueError as e:
-        raise UsageError(str(e)) from None
 
 
 def _refuse_plot_format(path: str | None) -> None:
@@ -121,35 +74,25 @@ def _model_notes(model, d) -> list[str]:
     return [note] if note else []
 
 
-def _parse_model(text: str, catalogue=None):
-    from ..models import parse_model
-
-    try:
-        return parse_model(text, catalogue)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-
-
-def progress_line(args: argparse.Namespace, title: str):
-    """The terminal's progress line for this command (silent when stderr is not a terminal, or with -q)."""
-    from ..reports.work_progress import WorkProgressLine
-
-    return WorkProgressLine(title, verbosity(args))
-
-
 def cmd_fit(args: argparse.Namespace) -> int:
     from ..analysis import fit_recording
     from ..diagnosis import headline
     from ..models.progress import ProgressCounter
 
-    _check_window(args)
+    check_window(args)
     _refuse_plot_format(args.plot)
     refuse_unwritable(args.plot, "--plot")
     refuse_unwritable(args.table, "--table")
     if not args.model and not args.many:
         return_large_blocks_at_once()
+    if args.scheduler and not args.many:
+        raise UsageError("--scheduler runs the fits of many recordings on a cluster; add --many (and give a folder), or drop it")
+    if args.report:
+        refuse_unwritable(args.report, "--report", folder=True)
     if args.many:
-        return _fit_many(args)
+        from .recordings import fit_many_command
+
+        return fit_many_command(args)
     if args.model:
         return _fit_model(args)
     if args.effects:
@@ -176,6 +119,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(r.fit.report())
         print(f"    headline error: {h}")
         print(_fix_line(h) or f"    (what is missing? rig diagnose {args.recording})")
+    _fit_report(args, r.fit, r.samples.positive_variance(), h, r.notes)
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 
@@ -185,46 +129,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return exit_status([h])
 
 
-def _fit_many(args: argparse.Namespace) -> int:
-    """rig fit --many DIR: the paper's fit of every recording in a folder, in a pool of processes."""
-    from ..many import fit_many, recordings_in
-    from ..reports.result_json import dumps
-
-    folder = Path(args.recording)
-    if not folder.is_dir():
-        raise UsageError(f"--many takes a folder of recordings, and {folder} is not one; give the folder, or drop --many")
-    if args.model or args.plot or args.table or args.z_min is not None or args.z_max is not None:
-        raise UsageError("--many fits the paper's model of each whole recording; drop --model, --plot, --table and the "
-                         "--z-min/--z-max window, or fit the recordings one by one")
-    paths = recordings_in(folder)
-    if not paths:
-        raise UsageError(f"{folder} holds no recordings (*.h5); record some with rig run, or give another folder")
-    failed = 0
-    if not args.json:
-        print(f"{'recording':<32} {'k':>12} {'+/-':>9} {'lambda':>9} {'+/-':>9} {'headline':>9}  verdict")
-    for row in fit_many(paths, args.jobs):
-        failed += bool(row.error)
-        if args.json:
-            print(dumps(row.document, line=True) if row.document else dumps({"file": str(row.path), "error": row.error}, line=True))
-        elif row.error:
-            print(f"{row.path.name:<32} error: {row.error}")
-        else:
-            print(f"{row.path.name:<32} {row.k:>12.6g} {row.se_k:>9.2g} {row.lam:>9.5f} {row.se_lam:>9.2g} "
-                  f"{row.headline_pct:>8.2f}%  {row.verdict}")
-        sys.stdout.flush()
-    return 2 if failed == len(paths) else 0
-
-
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
     from ..diagnosis.scores import held_out_folds
     from ..models.progress import ProgressCounter
 
-    model = _parse_model(args.model, catalogue_of(args))
+    model = parse_model_option(args.model, catalogue_of(args))
     with progress_line(args, "rig fit") as progress:
         counter = ProgressCounter(progress, 3)
         counter.step("reading the recording")
-        d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        d, notes = model_data(args.recording, args.z_min, args.z_max)
         notes = notes + _model_notes(model, d)
         if not args.no_held_out:
             counter.expect(2 + len(np.unique(held_out_folds(d))))
@@ -243,6 +157,7 @@ def _fit_model(args: argparse.Namespace) -> int:
         print(dumps(document("fit", args.recording, notes, [fit_json(f, h, held_out_nll=nll)], best=model.name,
                              window_m=(args.z_min, args.z_max))))
         _write_table(args, f, d)
+        _fit_report(args, f, d, h, notes)
         return exit_status([h])
     for note in notes:
         print(f"note: {note}")
@@ -253,6 +168,7 @@ def _fit_model(args: argparse.Namespace) -> int:
     if nll is not None:
         print(f"    held-out negative log-likelihood per degree of freedom: {nll:.6f}")
     _write_table(args, f, d)
+    _fit_report(args, f, d, h, notes)
     return exit_status([h])
 
 
@@ -261,14 +177,24 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis.scores import held_out_folds
     from ..models.progress import ProgressCounter
 
-    _check_window(args)
+    check_window(args)
+    if len(args.recording) > 1 or Path(args.recording[0]).is_dir():
+        from .recordings import cmd_compare_recordings
+
+        return cmd_compare_recordings(args)
+    args.recording = args.recording[0]
+    if not args.models:
+        raise UsageError("rig compare of one recording needs --models (e.g. --models active,active+slant_range); to "
+                         "compare recordings, give two or more")
+    if args.model or args.plot or args.report:
+        raise UsageError("--model, --plot and --report are for comparing several recordings; with one, give --models")
     cat = catalogue_of(args)
-    models = [_parse_model(m, cat) for m in args.models.split(",")]
+    models = [parse_model_option(m, cat) for m in args.models.split(",")]
     rows = []
     with progress_line(args, "rig compare") as progress:
         counter = ProgressCounter(progress, 1 + 2 * len(models))
         counter.step("reading the recording")
-        d, notes = _model_data(args.recording, args.z_min, args.z_max)
+        d, notes = model_data(args.recording, args.z_min, args.z_max)
         firsts = {m.base.name: m for m in reversed(models)}  # one note a base, naming its first model
         notes = notes + [n for m in models if firsts[m.base.name] is m for n in _model_notes(m, d)]
         if not args.no_held_out:
@@ -313,10 +239,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")
     _check_writable(out)
-    model = _parse_model(args.model, cat) if args.model else None
+    model = parse_model_option(args.model, cat) if args.model else None
     with progress_line(args, "rig diagnose") as progress:
         progress(WorkProgress("reading the recording", 0, 1))
-        d, notes = _model_data(args.recording)
+        d, notes = model_data(args.recording)
         if model is not None:
             notes = notes + _model_notes(model, d)
         steps = [0]
@@ -345,6 +271,17 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(render_text(diag))
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return status
+
+
+def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str]) -> None:
+    """`--report DIR`: fit.html and its plot (rig.reports.report_pages)."""
+    if not args.report:
+        return
+    from ..reports.report_pages import fit_report
+
+    text = "\n".join([*(f"note: {n}" for n in notes), fit.report(), f"    headline error: {h}"])
+    page = fit_report(args.recording, fit, d, h, text, args.report, notes)
+    print(f"report: {page}", file=sys.stderr if args.json else sys.stdout)
 
 
 def _write_table(args: argparse.Namespace, fit, d) -> None:

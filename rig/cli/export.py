@@ -12,9 +12,9 @@ from .usage import UsageError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from .analyse import _shared_options, _window_options
+    from .shared import shared_options, window_options
 
-    p = sub.add_parser("export", parents=[_shared_options(), _window_options()],
+    p = sub.add_parser("export", parents=[shared_options(), window_options()],
                        help="fit a model and write it as a file other programs evaluate (docs/noise-model.md)")
     p.add_argument("--model", help="the model to fit and export (default: the paper's power law, as rig fit)")
     p.add_argument("-o", "--out", help="the model file to write (default: RECORDING-noise-model.json)")
@@ -30,18 +30,18 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..models.prediction import EffectStage
     from ..models.progress import ProgressCounter
     from ..noise_model import TERMS, NoiseModel
-    from ..reports.noise_model_file import noise_model_document
+    from ..models.export import noise_model_document
     from ..reports.sigma_map import map_problem, parse_ranges, write_sigma_maps
-    from .analyse import _check_window, _model_data, _parse_model, catalogue_of, progress_line
+    from .shared import catalogue_of, check_window, model_data, parse_model_option, progress_line
 
-    _check_window(args)
+    check_window(args)
     out = Path(args.out) if args.out else Path(args.recording).with_name(Path(args.recording).stem + "-noise-model.json")
     refuse_unwritable(out, "--out")
     try:
         ranges = parse_ranges(args.sigma_map) if args.sigma_map else None
     except ValueError as e:
         raise UsageError(str(e)) from None
-    model = _parse_model(args.model, catalogue_of(args)) if args.model else None
+    model = parse_model_option(args.model, catalogue_of(args)) if args.model else None
     if ranges is not None and model is not None:  # before the work: a map needs inputs per pixel some terms do not have
         unknown = [e.name for e in model.effects if e.stage <= EffectStage.CENSOR and e.name not in TERMS]
         problem = (f"the model has effects rig.noise_model cannot evaluate ({', '.join(unknown)})" if unknown else
@@ -60,7 +60,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             fit, d, notes = r.fit, r.samples.positive_variance(), r.notes
         else:
             counter.step("reading the recording")
-            d, notes = _model_data(args.recording, args.z_min, args.z_max)
+            d, notes = model_data(args.recording, args.z_min, args.z_max)
             counter.step(f"fitting {model.name}")
             try:
                 fit = model.fit(d)

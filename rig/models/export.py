@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 
 from .. import package_version
-from ..models.data import ModelData
-from ..models.pchip import pchip_slopes, slopes_jacobian
-from ..models.prediction import EffectStage
-from ..models.result import ModelFit
 from ..noise_model import SCHEMA, TERMS
+from .data import ModelData
+from .pchip import pchip_slopes, slopes_jacobian
+from .prediction import EffectStage
+from .result import ModelFit
 
 #: what each effect that acts after sigma does to the samples, in words (docs/noise-model.md, "After sigma")
 AFTER_SIGMA = {

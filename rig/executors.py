@@ -1,0 +1,74 @@
+"""Where work on many recordings runs: a local process pool (the default, embedded), or a Dask cluster.
+
+    for result in run_each(fit_one, paths, jobs=4):                       # this machine, 4 processes
+    for result in run_each(fit_one, paths, scheduler="tcp://host:8786"):  # a dask.distributed cluster
+
+Each item is one recording's work, independent of the others' (a path in, a few KB of results out), so it runs
+unchanged on either; results come as they finish. The scheduler comes from `scheduler`, else the environment's
+RIG_SCHEDULER, else none (the local pool). A cluster's workers read the recordings by the paths given, so the
+files must be where the workers see them (a shared file system): docs/performance.md, "Past one machine".
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+SCHEDULER_ENV = "RIG_SCHEDULER"
+
+
+def scheduler_address(given: str | None) -> str | None:
+    """The Dask scheduler to use: `given`, else $RIG_SCHEDULER, else None (the local pool)."""
+    return given or os.environ.get(SCHEDULER_ENV) or None
+
+
+def run_each(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = None,
+             scheduler: str | None = None) -> Iterator[R]:
+    """fn(item) for every item, as they finish: on the Dask cluster at `scheduler` (`scheduler_address`), else in
+    `jobs` local processes (default: one per core; 1 runs them here, in order)."""
+    items = list(items)
+    address = scheduler_address(scheduler)
+    if address:
+        yield from _on_cluster(fn, items, address)
+        return
+    jobs = max(1, jobs or os.cpu_count() or 1)
+    if jobs == 1 or len(items) <= 1:
+        for item in items:
+            yield fn(item)
+        return
+    with ProcessPoolExecutor(max_workers=min(jobs, len(items))) as pool:
+        for f in as_completed([pool.submit(fn, item) for item in items]):
+            yield f.result()
+
+
+def _on_cluster(fn: Callable[[Any], R], items: list[Any], address: str) -> Iterator[R]:
+    try:
+        from distributed import Client, as_completed as finished
+    except ImportError:
+        raise ValueError(f"--scheduler {address}: running on a Dask cluster needs the distributed package; install it "
+                         "with pip install 'rig[cluster]', or drop --scheduler (and unset RIG_SCHEDULER) to run here") from None
+    try:
+        _answers(address)
+        client = Client(address, timeout="10s")
+    except (OSError, TimeoutError) as e:
+        raise ValueError(f"--scheduler {address}: no Dask scheduler answers there ({e}); start one (dask scheduler) or "
+                         "check the address, or drop --scheduler (and unset RIG_SCHEDULER) to run here") from None
+    with client:
+        futures = client.map(fn, items, pure=False)
+        for f in finished(futures):
+            yield f.result()
+
+
+def _answers(address: str) -> None:
+    """An OSError at once when nothing listens at a tcp:// address (Dask's own client retries for its whole timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    where = urlsplit(address)
+    if where.scheme == "tcp" and where.hostname and where.port:
+        socket.create_connection((where.hostname, where.port), timeout=5).close()

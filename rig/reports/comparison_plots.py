@@ -1,0 +1,75 @@
+"""The plots of `rig compare a.h5 b.h5` and `rig repeatability`: sigma against range for every recording on one
+pair of axes, and each parameter run by run with its error bars."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+import matplotlib.ticker
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..comparison import Scatter  # noqa: E402
+from ..recording_fits import RecordingResult  # noqa: E402
+
+COLOURS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+
+def plot_overlay(results: list[RecordingResult], path: str | Path) -> Path:
+    """sigma_Z against Z: each recording's measured sigma per stop (+-2 s.e.) and its model's curve, in one colour;
+    linear axes left, log-log right (a power law is a straight line of slope lambda)."""
+    path = Path(path)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    fig.subplots_adjust(left=0.065, right=0.985, bottom=0.12, top=0.92, wspace=0.2)
+    for ax, loglog in zip(axes, (False, True)):
+        for i, r in enumerate(x for x in results if not x.error):
+            c = COLOURS[i % len(COLOURS)]
+            ax.errorbar(r.z_m, 1e3 * np.array(r.sigma_m), yerr=2e3 * np.array(r.se_sigma_m), fmt="o", ms=4, color=c,
+                        capsize=3, label=f"{r.name}: measured")
+            lam = f", λ={r.values['lambda']:.4f}" if "lambda" in r.values else ""
+            ax.plot(r.curve_z_m, 1e3 * np.array(r.curve_sigma_m), "-", color=c,
+                    label=f"{r.name}: {r.model} ({r.curve_label}){lam}")
+        ax.set_xlabel("Z [m]")
+        ax.set_ylabel("σ_Z [mm]")
+        ax.grid(True, which="both", alpha=0.3)
+        if loglog:
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            for axis in (ax.xaxis, ax.yaxis):
+                axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+                axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+            ax.set_title("log-log: slope = λ")
+        else:
+            ax.set_title("Range error against range")
+            ax.legend(fontsize=7, loc="upper left")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_runs(results: list[RecordingResult], scatters: list[Scatter], path: str | Path) -> Path:
+    """Each parameter run by run (+-1 Cramer-Rao error), with the runs' mean and +-1 run-to-run standard deviation."""
+    path = Path(path)
+    fitted = [r for r in results if not r.error]
+    fig, axes = plt.subplots(1, len(scatters), figsize=(4.5 * len(scatters), 3.6), squeeze=False)
+    x = np.arange(1, len(fitted) + 1)
+    for ax, s in zip(axes[0], scatters):
+        v = [r.values[s.parameter] for r in fitted]
+        e = [r.errors.get(s.parameter, np.nan) for r in fitted]
+        ax.errorbar(x, v, yerr=e, fmt="o", capsize=3, label="run (±1 reported error)")
+        ax.axhline(s.mean, color="k", lw=1)
+        ax.axhspan(s.mean - s.sd, s.mean + s.sd, color="0.85", label="mean ±1 run-to-run s.d.")
+        ax.set_title(f"{s.parameter}: scatter / error = {s.ratio:.2f}", fontsize=10)
+        ax.set_xlabel("run")
+        ax.set_xticks(x)
+        ax.grid(True, alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,79 @@
+"""The HTML pages of `rig fit`, `rig compare` and `rig repeatability` (`--report DIR`): like `rig diagnose`'s, one
+self-contained page with the run's metadata, the tables, the plots embedded and the text report (`html_page`)."""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+from ..comparison import Difference, Scatter, pair_verdict, repeatability_verdict
+from ..recording_fits import RecordingResult
+from .comparison_text import difference_rows, results_rows, scatter_rows
+from .html_page import figures, page, run_table, table
+from .run_info import RunInfo
+
+
+def _write(out_dir: str | Path, name: str, text: str) -> Path:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / name
+    tmp = path.with_name(f".{name}.writing")
+    tmp.write_text(text)
+    tmp.replace(path)  # a reader never sees half a page
+    return path
+
+
+def write_fit_page(title: str, summary: str, report: str, plots: list[Path], out_dir: str | Path,
+                   run: RunInfo | None = None) -> Path:
+    """fit.html: the run, the headline in one line, the plots, the fit's text report."""
+    body = (f'{run_table(run)}\n<p class="summary">{html.escape(summary)}</p>\n<h2>Plots</h2>\n{figures(plots)}\n'
+            f"<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
+    return _write(out_dir, "fit.html", page(title, body))
+
+
+def fit_report(path: str, fit, d, h, text: str, out_dir: str | Path, notes: list[str]) -> Path:
+    """`rig fit --report DIR`: fit.html with the run's metadata and the plot of sigma against range (measured per stop,
+    the model's curve on the optical axis) beside it."""
+    from protocols.recording import Recording, utc_now
+
+    from .. import package_version
+    from ..diagnosis.bins import pooled_sigma, sigma_by_range
+    from ..recording_fits import summarise
+    from .comparison_plots import plot_overlay
+    from .run_info import run_info
+
+    with Recording(path) as rec:
+        labels = rec.stop_labels()
+        measured = pooled_sigma(d, d.stop, labels) if len(labels) > 1 else sigma_by_range(d)
+        result = summarise(path, fit, d, h, measured, rec, notes, bool(d.projector_on.any()))
+    plot = plot_overlay([result], Path(out_dir) / "fit-sigma.png")
+    summary = f"{fit.model.name}: headline error {h}"
+    return write_fit_page(f"Range-error fit: {path}", summary, text, [plot], out_dir,
+                          run_info(path, utc_now(), package_version()))
+
+
+def write_compare_page(results: list[RecordingResult], pairs: list[list[Difference]], plots: list[Path],
+                       out_dir: str | Path, report: str, runs: list[RunInfo] | None = None) -> Path:
+    """compare.html: each recording's fit, the differences of each pair, the verdicts, the overlay plot."""
+    verdicts = "".join(f'<p class="summary">{html.escape(pair_verdict(p))}</p>' for p in pairs)
+    header, rows, marked = difference_rows(pairs)
+    body = (f"{verdicts}\n<h2>The fits</h2>\n{table(*results_rows(results))}\n<h2>Differences</h2>\n"
+            f"{table(header, rows, marked)}\n<h2>Plots</h2>\n{figures(plots)}\n{_runs(runs)}\n"
+            f"<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
+    return _write(out_dir, "compare.html", page(f"Recordings compared: {', '.join(r.name for r in results)}", body))
+
+
+def write_repeatability_page(results: list[RecordingResult], scatters: list[Scatter], plots: list[Path],
+                             out_dir: str | Path, report: str, runs: list[RunInfo] | None = None) -> Path:
+    """repeatability.html: the runs' fits, each parameter's scatter against its errors, the verdict, the plots."""
+    header, rows, marked = scatter_rows(scatters)
+    body = (f'<p class="summary">{html.escape(repeatability_verdict(scatters))}</p>\n<h2>Scatter against the reported '
+            f"errors</h2>\n{table(header, rows, marked)}\n<h2>The runs</h2>\n{table(*results_rows(results))}\n"
+            f"<h2>Plots</h2>\n{figures(plots)}\n{_runs(runs)}\n<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
+    return _write(out_dir, "repeatability.html", page(f"Repeatability over {len(results)} runs", body))
+
+
+def _runs(runs: list[RunInfo] | None) -> str:
+    if not runs:
+        return ""
+    return "<h2>The recordings</h2>\n" + "\n".join(run_table(r) for r in runs)
