@@ -134,14 +134,16 @@ def test_a_fit_writes_its_report_page(runs, tmp_path):
 
 
 def test_a_fleet_on_a_dask_cluster_gives_what_the_local_pool_gives(runs, tmp_path, monkeypatch):
-    """A real scheduler and two worker processes (distributed.LocalCluster, over TCP): rig fit --many and rig compare
-    give the same numbers there as in the local process pool."""
+    """A real scheduler and two workers (distributed.LocalCluster over TCP: every task and result crosses a socket,
+    pickled): rig fit --many and rig compare give the same numbers there as in the local process pool. The workers
+    are threads of this process (processes=False): worker processes would each import rig again (~4 s of CPU
+    apiece) and test nothing more of rig."""
     from distributed import LocalCluster
 
     folder = runs["alike"][0].parent
     local = rig_in_process("fit", folder, "--many", "--json", "--jobs", "2")
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                      protocol="tcp") as cluster:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None,
+                      protocol="tcp://") as cluster:
         remote = rig_in_process("fit", folder, "--many", "--json", "--scheduler", cluster.scheduler_address)
         monkeypatch.setenv("RIG_SCHEDULER", cluster.scheduler_address)  # the environment's scheduler, no option
         compared = rig_in_process("compare", *runs["alike"][:3], "--json", "--plot", tmp_path / "c.png")
@@ -149,7 +151,7 @@ def test_a_fleet_on_a_dask_cluster_gives_what_the_local_pool_gives(runs, tmp_pat
     monkeypatch.delenv("RIG_SCHEDULER")
     here = rig_in_process("compare", *runs["alike"][:3], "--json", "--plot", tmp_path / "c.png", "--jobs", "2")
     assert local.returncode == remote.returncode == compared.returncode == here.returncode == 0, remote.stderr
-    assert workers == 2
+    assert workers == 2 and cluster.scheduler_address.startswith("tcp://")
 
     def rows(text: str) -> dict:
         return {d["file"]: d["fits"][0]["values"] for d in map(json.loads, text.splitlines())}
