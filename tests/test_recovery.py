@@ -1,8 +1,8 @@
 """Parameter recovery through the whole chain: fake camera -> runner -> HDF5 -> fit.
 
 The fake camera's physics implies sigma_Z = k Z^3 with the projector on and k Z^2 with it
-off (fakes.physics.base_truth). A 32x18 image with 100 frames per stop gives ~630k samples
-per run, so the fit's standard errors (~0.0016 in lambda) are larger than the fake's small
+off (fakes.physics.base_truth). A 32x18 image with 50 frames per stop gives ~320k samples
+per run, so the fit's standard errors (~0.0023 in lambda) are larger than the fake's small
 departures from the pure model (depth-unit rounding at 0.5 m with a 0.05 mm unit, and the
 curvature of Z = f b / d at 3 m), which stay below half a standard error.
 """
@@ -14,13 +14,15 @@ from rig.analysis import fit_recording
 from simrig import record_perpendicular
 
 SEEDS = range(40)
+FRAMES = 50
 
 
 @pytest.mark.parametrize("projector_on", [True, False], ids=["active", "passive"])
 def test_fake_camera_parameters_recovered_with_calibrated_standard_errors(tmp_path, projector_on):
     fits, truth = [], None
     for seed in SEEDS:
-        path, truth, _ = record_perpendicular(tmp_path / f"run{seed}.h5", seed=seed, projector_on=projector_on)
+        path, truth, _ = record_perpendicular(tmp_path / f"run{seed}.h5", seed=seed, projector_on=projector_on,
+                                             frames=FRAMES)
         fits.append(fit_recording(path).fit)
     k, lam = truth
     assert lam == (3.0 if projector_on else 2.0)
@@ -31,4 +33,4 @@ def test_fake_camera_parameters_recovered_with_calibrated_standard_errors(tmp_pa
     assert abs(lams.std(ddof=1) / np.mean([f.se_lam for f in fits]) - 1) < 0.3
     assert abs(ks.std(ddof=1) / np.mean([f.se_k for f in fits]) - 1) < 0.3
     # every pixel of every frame was used
-    assert fits[0].n_samples == 11 * 100 * 32 * 18
+    assert fits[0].n_samples == 11 * FRAMES * 32 * 18
