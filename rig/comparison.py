@@ -152,10 +152,29 @@ def scatter(results: list[RecordingResult]) -> list[Scatter]:
     return out
 
 
-def repeatability_verdict(scatters: list[Scatter]) -> str:
-    """The runs in one sentence: honest errors, or which parameter varies and what that suggests."""
+def repeatability_verdict(scatters: list[Scatter], results: list[RecordingResult] | None = None) -> str:
+    """The runs in one sentence: honest errors, or which parameter varies and what that suggests; and, when the model
+    does not fit the runs within noise, that its errors do not hold for them (`misfit_caution`)."""
     bad = [s for s in scatters if math.isfinite(s.p) and not s.honest]
     if not bad:
-        return ("the errors are honest: every parameter's run-to-run scatter is what its reported errors allow ("
+        text = ("the errors are honest: every parameter's run-to-run scatter is what its reported errors allow ("
                 + ", ".join(f"{s.parameter} {s.ratio:.2f}" for s in scatters) + ")")
-    return "; ".join(s.sentence() for s in bad)
+    else:
+        text = "; ".join(s.sentence() for s in bad)
+    caution = misfit_caution(results or [])
+    return f"{text}. {caution}" if caution else text
+
+
+def misfit_caution(results: list[RecordingResult]) -> str | None:
+    """When the model is beyond noise on the runs: Cramer-Rao errors assume the model is right, and a misfit that
+    moves with what differs between runs (where the stops fall on the depth grid, with a coarse depth unit) scatters
+    the parameters beyond them. None when every run's fit is within noise."""
+    beyond = [r for r in results if not r.error and r.verdict.startswith("beyond noise")]
+    if not beyond:
+        return None
+    worst = max(beyond, key=lambda r: r.headline_pct)
+    return (f"But {worst.model} does not fit {len(beyond)} of the {len([r for r in results if not r.error])} runs within "
+            f"noise (headline error up to {worst.headline_pct:.2f} % against {worst.noise_pct:.2f} % of noise): its "
+            "errors hold only for a model that fits, and the misfit can move from run to run (with a coarse depth unit, "
+            f"where the stops fall on the depth grid); diagnose a run (rig diagnose {worst.name}) and repeat with the "
+            "model it finds (--model)")

@@ -80,10 +80,12 @@ class NoiseModel:
 
     def valid(self, z_m: Any, u_px: Any, v_px: Any) -> np.ndarray:
         """True where (z, u, v) lies within what the fitted data covered (`valid` in the file)."""
-        v = self.doc["valid"]
-        z, u, w = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (z_m, u_px, v_px)))
-        return ((v["z_m"][0] <= z) & (z <= v["z_m"][1]) & (v["u_px"][0] <= u) & (u <= v["u_px"][1])
-                & (v["v_px"][0] <= w) & (w <= v["v_px"][1]))
+        out = np.ones(np.broadcast_shapes(*(np.shape(a) for a in (z_m, u_px, v_px))), dtype=bool)
+        for key, a in (("z_m", z_m), ("u_px", u_px), ("v_px", v_px)):
+            lo, hi = self.doc["valid"][key]  # null: the recording did not say (pixel positions of an import)
+            a = np.asarray(a, dtype=float)
+            out &= (a >= (-np.inf if lo is None else lo)) & (a <= (np.inf if hi is None else hi))
+        return out
 
     # -- sigma -----------------------------------------------------------------------------------
     def sigma(self, z_m: Any, u_px: Any, v_px: Any, *, with_error: bool = False,

@@ -102,6 +102,23 @@ def test_two_units_are_alike_and_projector_off_changes_the_law(runs, tmp_path):
     assert [d["parameter"] for d in doc["differences"][0]] == ["k"]
 
 
+def test_a_model_that_does_not_fit_the_runs_is_named_in_the_verdict():
+    from rig.comparison import misfit_caution, repeatability_verdict
+    from rig.recording_fits import RecordingResult
+
+    def run(i: int, verdict: str, pct: float) -> RecordingResult:
+        return RecordingResult(f"run{i}.h5", "power_law", values={"k": 0.002 + 1e-6 * i}, errors={"k": 1e-6}, free=["k"],
+                               headline_pct=pct, noise_pct=0.24, verdict=verdict)
+
+    fitting = [run(i, "within noise", 0.3) for i in range(4)]
+    assert misfit_caution(fitting) is None
+    assert repeatability_verdict(scatter(fitting), fitting).startswith("the errors are honest")
+    misfit = [*fitting[:3], run(3, "beyond noise; worst: sigma at 0.5 m", 8.41)]
+    text = repeatability_verdict(scatter(misfit), misfit)
+    assert "power_law does not fit 1 of the 4 runs within noise (headline error up to 8.41 % against 0.24 %" in text
+    assert "rig diagnose run3.h5" in text
+
+
 def test_the_differences_are_in_standard_errors_of_the_difference(runs):
     results = [fit_for_comparison(FitJob(str(p))) for p in runs["alike"][:3]]
     pairs = differences(results)

@@ -164,7 +164,7 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps({"schema": "rig.comparison/1", "command": "repeatability", "fits": [_fit_json(r) for r in results],
                      "scatter": [asdict(s) | {"honest": s.honest, "sentence": s.sentence()} for s in scatters],
-                     "verdicts": [repeatability_verdict(scatters)], "plots": [str(p) for p in plots],
+                     "verdicts": [repeatability_verdict(scatters, results)], "plots": [str(p) for p in plots],
                      "report": str(page) if page else None}))
     else:
         print(text)

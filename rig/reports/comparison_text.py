@@ -45,7 +45,7 @@ def difference_rows(pairs: list[list[Difference]]) -> tuple[list[str], list[list
     rows, marked = [], []
     for pair in pairs:
         for d in pair:
-            rows.append([d.a.name, d.b.name, d.parameter, f"{d.value_a - d.value_b:.3g}", f"{d.z:+.1f}", f"{d.p:.1e}",
+            rows.append([d.a.name, d.b.name, d.parameter, f"{d.value_a - d.value_b:.3g}", f"{d.z:+.1f}", f"{d.p:.1e}" if d.p > 0 else "< 1e-300",
                          "yes" if d.significant else "no"])
             marked.append(d.significant)
     return header, rows, marked
@@ -70,4 +70,4 @@ def render_compare(results: list[RecordingResult], pairs: list[list[Difference]]
 def render_repeatability(results: list[RecordingResult], scatters: list[Scatter]) -> str:
     header, rows, _ = scatter_rows(scatters)
     return "\n".join([aligned(*results_rows(results)), "", aligned(header, rows), "",
-                      f"verdict: {repeatability_verdict(scatters)}"])
+                      f"verdict: {repeatability_verdict(scatters, results)}"])

@@ -67,7 +67,7 @@ def write_repeatability_page(results: list[RecordingResult], scatters: list[Scat
                              out_dir: str | Path, report: str, runs: list[RunInfo] | None = None) -> Path:
     """repeatability.html: the runs' fits, each parameter's scatter against its errors, the verdict, the plots."""
     header, rows, marked = scatter_rows(scatters)
-    body = (f'<p class="summary">{html.escape(repeatability_verdict(scatters))}</p>\n<h2>Scatter against the reported '
+    body = (f'<p class="summary">{html.escape(repeatability_verdict(scatters, results))}</p>\n<h2>Scatter against the reported '
             f"errors</h2>\n{table(header, rows, marked)}\n<h2>The runs</h2>\n{table(*results_rows(results))}\n"
             f"<h2>Plots</h2>\n{figures(plots)}\n{_runs(runs)}\n<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
     return _write(out_dir, "repeatability.html", page(f"Repeatability over {len(results)} runs", body))
