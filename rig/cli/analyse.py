@@ -10,8 +10,8 @@ import numpy as np
 
 from .memory import return_large_blocks_at_once
 from .options import EXIT_UNDETERMINED, refuse_unwritable
-from .shared import (catalogue_of, check_window, model_data, parse_model_option, progress_line, shared_options,
-                     window_options)
+from .shared import (catalogue_of, check_window, fit_or_refuse, model_data, parse_model_option, progress_line,
+                     shared_options, window_options)
 from .usage import UsageError
 
 
@@ -143,10 +143,7 @@ def _fit_model(args: argparse.Namespace) -> int:
         if not args.no_held_out:
             counter.expect(2 + len(np.unique(held_out_folds(d))))
         counter.step(f"fitting {model.name}")
-        try:
-            f = model.fit(d)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
+        f = fit_or_refuse(model, d)
         counter.step("headline error: every statistic the model predicts")
         h = headline(f, d)
         nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter, jobs=max(1, args.jobs))
@@ -201,10 +198,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             counter.expect(len(models) * (2 + len(np.unique(held_out_folds(d)))))
         for m in models:
             counter.step(f"fitting {m.name}")
-            try:
-                f = m.fit(d)
-            except ValueError as e:
-                raise UsageError(str(e)) from None
+            f = fit_or_refuse(m, d)
             counter.step(f"headline error of {m.name}")
             rows.append((m, f, headline(f, d), None if args.no_held_out else held_out_nll(m, d, f, counter=counter, jobs=max(1, args.jobs))))
         counter.finish()

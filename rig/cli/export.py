@@ -32,7 +32,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..noise_model import TERMS, NoiseModel
     from ..models.export import noise_model_document
     from ..reports.sigma_map import map_problem, parse_ranges, write_sigma_maps
-    from .shared import catalogue_of, check_window, model_data, parse_model_option, progress_line
+    from .shared import catalogue_of, check_window, fit_or_refuse, model_data, parse_model_option, progress_line
 
     check_window(args)
     out = Path(args.out) if args.out else Path(args.recording).with_name(Path(args.recording).stem + "-noise-model.json")
@@ -62,10 +62,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             counter.step("reading the recording")
             d, notes = model_data(args.recording, args.z_min, args.z_max)
             counter.step(f"fitting {model.name}")
-            try:
-                fit = model.fit(d)
-            except ValueError as e:
-                raise UsageError(str(e)) from None
+            fit = fit_or_refuse(model, d)
         counter.step("headline error: where the model is valid")
         h = headline(fit, d)
         counter.finish()

@@ -77,6 +77,14 @@ def parse_model_option(text: str, catalogue=None):
         raise UsageError(str(e)) from None
 
 
+def fit_or_refuse(model, d):
+    """`model` fitted to `d`; a model the data cannot take (rig.models: a ValueError) is the one-line usage error."""
+    try:
+        return model.fit(d)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
 def progress_line(args: argparse.Namespace, title: str):
     """The terminal's progress line for this command (silent when stderr is not a terminal, or with -q)."""
     from ..reports.work_progress import WorkProgressLine

@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
-import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -14,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from ..comparison import Scatter  # noqa: E402
 from ..recording_fits import RecordingResult  # noqa: E402
+from .sigma_plot import finish_sigma_figure, sigma_figure  # noqa: E402
 
 COLOURS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -21,10 +21,8 @@ COLOURS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 def plot_overlay(results: list[RecordingResult], path: str | Path) -> Path:
     """sigma_Z against Z: each recording's measured sigma per stop (+-2 s.e.) and its model's curve, in one colour;
     linear axes left, log-log right (a power law is a straight line of slope lambda)."""
-    path = Path(path)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
-    fig.subplots_adjust(left=0.065, right=0.985, bottom=0.12, top=0.92, wspace=0.2)
-    for ax, loglog in zip(axes, (False, True)):
+    fig, axes = sigma_figure()
+    for ax in axes:
         for i, r in enumerate(x for x in results if not x.error):
             c = COLOURS[i % len(COLOURS)]
             ax.errorbar(r.z_m, 1e3 * np.array(r.sigma_m), yerr=2e3 * np.array(r.se_sigma_m), fmt="o", ms=4, color=c,
@@ -32,23 +30,7 @@ def plot_overlay(results: list[RecordingResult], path: str | Path) -> Path:
             lam = f", λ={r.values['lambda']:.4f}" if "lambda" in r.values else ""
             ax.plot(r.curve_z_m, 1e3 * np.array(r.curve_sigma_m), "-", color=c,
                     label=f"{r.name}: {r.model} ({r.curve_label}){lam}")
-        ax.set_xlabel("Z [m]")
-        ax.set_ylabel("σ_Z [mm]")
-        ax.grid(True, which="both", alpha=0.3)
-        if loglog:
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            for axis in (ax.xaxis, ax.yaxis):
-                axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-                axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-            ax.set_title("log-log: slope = λ")
-        else:
-            ax.set_title("Range error against range")
-            ax.legend(fontsize=7, loc="upper left")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return finish_sigma_figure(fig, axes, path, "Range error against range", legend_size=7)
 
 
 def plot_runs(results: list[RecordingResult], scatters: list[Scatter], path: str | Path) -> Path:

@@ -50,11 +50,8 @@ def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str 
     Left: linear axes, as in the paper. Right: log-log axes, where a power law is a straight
     line of slope lambda.
     """
-    path = Path(path)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
-    # fixed margins: the labels are the fixed ones below and short "%g" ticks (the tight layout engine measured each)
-    fig.subplots_adjust(left=0.065, right=0.985, bottom=0.12, top=0.92, wspace=0.2)
-    for ax, loglog in zip(axes, (False, True)):
+    fig, axes = sigma_figure()
+    for ax in axes:
         for s in series:
             m = s.measured
             ax.errorbar(m.z_m, 1000 * m.sigma_m, yerr=1000 * 2 * m.se_sigma_m, fmt="o", ms=4, color=s.color,
@@ -62,6 +59,22 @@ def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str 
             z = np.linspace(min(m.z_m.min(), s.fit.z_min_m) * 0.95, max(m.z_m.max(), s.fit.z_max_m) * 1.03, 200)
             ax.plot(z, 1000 * s.fit.sigma_m(z), "-", color=s.color,
                     label=f"{s.label}: fit k={s.fit.k:.3g}, λ={s.fit.lam:.4f}±{s.fit.se_lam:.1g}")
+    return finish_sigma_figure(fig, axes, path, title)
+
+
+def sigma_figure():
+    """The two panels of a sigma-vs-range plot (linear, log-log), with fixed margins: the labels are the fixed ones
+    of `finish_sigma_figure` and short "%g" ticks (the tight layout engine measured each)."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    fig.subplots_adjust(left=0.065, right=0.985, bottom=0.12, top=0.92, wspace=0.2)
+    return fig, axes
+
+
+def finish_sigma_figure(fig, axes, path: str | Path, title: str, legend_size: int = 8) -> Path:
+    """Label both panels (the right one log-log: a power law is a straight line of slope lambda), write the figure to
+    `path` and close it."""
+    path = Path(path)
+    for ax, loglog in zip(axes, (False, True)):
         ax.set_xlabel("Z [m]")
         ax.set_ylabel("σ_Z [mm]")
         ax.grid(True, which="both", alpha=0.3)
@@ -74,7 +87,7 @@ def plot_sigma_vs_range(series: list[SigmaSeries], path: str | Path, title: str 
             ax.set_title("log-log: slope = λ")
         else:
             ax.set_title(title)
-            ax.legend(fontsize=8, loc="upper left")
+            ax.legend(fontsize=legend_size, loc="upper left")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
