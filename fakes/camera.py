@@ -55,6 +55,9 @@ FAKE_CAMERA_OPTIONS = OptionTable("fake", "camera", (
     Option("room_light_sd", float, 0.0, between(0, 1), "", "run to run: the room light on the wall differs by this "
            "fraction (a standard deviation) from one seed to the next, as daylight through a window does; with light=day "
            "and the projector on, lambda varies with it", example=0.3, absent="0: every run alike"),
+    Option("mount_sd_mm", float, 0.0, between(0, 100), "mm", "run to run: the camera sits this much (a standard "
+           "deviation) nearer or farther from the wall from one seed to the next, as a remounted camera does",
+           example=5, absent="0: every run alike"),
 ), error=CameraError)
 
 
@@ -101,6 +104,7 @@ class FakeCamera(DepthCamera):
         ir_gain: float = 1.0,
         warmup_sd: float = 0.0,
         room_light_sd: float = 0.0,
+        mount_sd_mm: float = 0.0,
     ):
         self.world = world
         scale = width / NATIVE_WIDTH
@@ -119,6 +123,7 @@ class FakeCamera(DepthCamera):
         run_rng = np.random.default_rng(seed + 15485863)
         level, room = (float(np.exp(run_rng.normal(0.0, sd))) for sd in (warmup_sd, room_light_sd))
         self.warmup_sd, self.room_light_sd = warmup_sd, room_light_sd
+        self.mount_offset_m = float(run_rng.normal(0.0, mount_sd_mm)) / 1000.0  # added to the wall's distance
         physics = physics or SensorPhysics()
         self.physics = replace(physics, pattern_e_per_ms_at_1m=physics.pattern_e_per_ms_at_1m * level,
                                texture_e_per_ms=physics.texture_e_per_ms * level * room)
@@ -181,6 +186,7 @@ class FakeCamera(DepthCamera):
             ir_gain=o["ir_gain"],
             warmup_sd=o["warmup_sd"],
             room_light_sd=o["room_light_sd"],
+            mount_sd_mm=o["mount_sd_mm"],
         )
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -232,7 +238,7 @@ class FakeCamera(DepthCamera):
 
     # -- truth, for tests and demos ----------------------------------------------------------
     def true_distance_m(self) -> float:
-        return float(self.world.wall.distance_m)
+        return float(self.world.wall.distance_m) + self.mount_offset_m
 
     def base_truth(self, settings: CameraSettings | None = None) -> tuple[float, float]:
         """(k, lambda) of the base physics without effects, for `settings` (default: the current ones)."""
@@ -251,7 +257,8 @@ class FakeCamera(DepthCamera):
         """The per-pixel field for the wall's present position and the present settings."""
         s, wall = self._settings, self.world.wall
         room_lit = bool(self._room_lit)
-        key = (wall.distance_m, wall.tilt_deg, wall.roughness_m, s.projector_on, s.exposure_us, s.gain, room_lit)
+        distance_m = wall.distance_m + self.mount_offset_m
+        key = (distance_m, wall.tilt_deg, wall.roughness_m, s.projector_on, s.exposure_us, s.gain, room_lit)
         if key != self._field_key:
             i = self.intrinsics
             self._field = build_field(
@@ -262,7 +269,7 @@ class FakeCamera(DepthCamera):
                 cx=i.cx,
                 cy=i.cy,
                 baseline_m=self.baseline_m,
-                distance_m=wall.distance_m,
+                distance_m=distance_m,
                 tilt_deg=wall.tilt_deg,
                 projector_on=s.projector_on,
                 exposure_us=s.exposure_us,

@@ -32,11 +32,12 @@ def _runs(folder: Path, name: str, seeds, options: str = "", **kw) -> list[Path]
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, list[Path]]:
     """Five runs each (seeds 1-5): alike; with warm-up (the light's level varies 10 % run to run); with daylight
-    that varies 50 % run to run; and one run with the projector off."""
+    that varies 50 % run to run; remounted 10 mm nearer or farther each run; and one run with the projector off."""
     root = tmp_path_factory.mktemp("runs")
     return {"alike": _runs(root / "alike", "run", range(1, 6)),
             "warm": _runs(root / "warm", "run", range(1, 6), "warmup_sd=0.1"),
             "daylight": _runs(root / "daylight", "run", range(1, 6), "light=day,room_light_sd=0.5"),
+            "remounted": _runs(root / "remounted", "run", range(1, 6), "mount_sd_mm=10"),
             "off": _runs(root / "off", "passive", [9], projector_on=False)}
 
 
@@ -49,6 +50,12 @@ def test_the_fake_camera_varies_from_run_to_run_only_when_asked(tmp_path):
                                         camera_options="warmup_sd=0.1")
     assert truth_1 == truth_2
     assert warm_1[0] != warm_2[0] and warm_1[1] == warm_2[1] == truth_1[1]  # k moves, lambda stays
+    offsets = []
+    for seed in (1, 2):
+        _, _, devices = record_perpendicular(tmp_path / f"m{seed}.h5", seed=seed, width=16, frames=3, stops_m=[1.0],
+                                             camera_options="mount_sd_mm=5")
+        offsets.append(devices.camera.true_distance_m() - 1.0)
+    assert offsets[0] != offsets[1] and all(0 < abs(o) < 0.03 for o in offsets)  # millimetres, not the stage's metres
     # the depth noise of a seed is the same with the option at 0 as without it
     record_perpendicular(tmp_path / "e.h5", seed=1, width=16, frames=3, stops_m=[1.0], camera_options="warmup_sd=0")
     import h5py
@@ -63,6 +70,8 @@ def test_repeatability_finds_honest_errors_and_says_which_parameter_varies(runs,
     honest = scatter([fit_for_comparison(FitJob(str(p))) for p in runs["alike"]])
     assert [s.parameter for s in honest] == ["k", "lambda"]
     assert all(s.honest and s.low <= 1.0 <= s.high for s in honest)  # the ratio's interval for 5 runs holds 1
+    remounted = scatter([fit_for_comparison(FitJob(str(p))) for p in runs["remounted"]])
+    assert all(s.honest for s in remounted)  # a different distance each run moves nothing: the fit uses measured ranges
     warm = {s.parameter: s for s in scatter([fit_for_comparison(FitJob(str(p))) for p in runs["warm"]])}
     assert not warm["k"].honest and warm["k"].low > 1 and warm["lambda"].honest
     r = rig_in_process("repeatability", *runs["warm"], "--jobs", "1", "--plot", tmp_path / "warm.png",
