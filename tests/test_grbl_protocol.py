@@ -47,14 +47,15 @@ class Events:
     def read(self) -> list[str]:
         return [str(d[0]) for e, d in self.log if e == "on_read" and d]
 
-    def wait(self, test, timeout_s: float = 30.0) -> None:  # a deadline, not a sleep: generous under load
+    def wait(self, test, timeout_s: float = 30.0, describe=None) -> None:  # a deadline, not a sleep: generous under load
         """Until test(self) holds, checked on every event and every 50 ms: a test may read the simulator's
-        state, which changes with no event (grbl-streamer stays silent once the job's last `ok` is in)."""
+        state, which changes with no event (grbl-streamer stays silent once the job's last `ok` is in). On time-out
+        the message has the last events and, from `describe`, what the test was waiting on (the simulator's state)."""
         deadline = time.monotonic() + timeout_s
         with self.changed:
             while not test(self):
                 left = deadline - time.monotonic()
-                assert left > 0, [e for e, _ in self.log][-20:]
+                assert left > 0, ([e for e, _ in self.log][-20:], describe() if describe else None)
                 self.changed.wait(min(left, 0.05))
 
 
@@ -77,7 +78,8 @@ def test_grbl_streamer_connects_reads_settings_and_streams_a_job():
             sender.job_run()
             # it counts characters against the 128-byte buffer and sees each line acknowledged
             events.wait(lambda ev: any(e == "on_processed_command" and d[1] == "G00X40" for e, d in ev.log), 30.0)
-            events.wait(lambda ev: sim.state == "Idle" and sim.machine_mm(time.monotonic()) == 40.0)
+            events.wait(lambda ev: sim.state == "Idle" and sim.machine_mm(time.monotonic()) == 40.0,
+                    describe=lambda: (sim.state, repr(sim.machine_mm(time.monotonic())), sim.commands[-5:], sim.replies[-5:]))
             assert not [d for e, d in events.log if e in ("on_error", "on_alarm")]
             assert sim.machine_mm(time.monotonic()) == pytest.approx(40.0, abs=1e-6)
             # it parsed our status reports while the job ran, and after it (its own polling lags the job's end)
