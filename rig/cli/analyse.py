@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .memory import return_large_blocks_at_once
+from .memory import keep_large_blocks, return_large_blocks_at_once
 from .options import EXIT_UNDETERMINED, refuse_unwritable
 from .shared import (catalogue_of, check_window, fit_or_refuse, model_data, parse_model_option, progress_line,
                      shared_options, window_options)
@@ -104,6 +104,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise UsageError(str(e)) from None
         counter.step("headline error: every statistic the paper's fit predicts")
+        keep_large_blocks()
         h = headline(r.fit, r.samples.positive_variance())
         counter.finish()
     if args.json:

@@ -74,7 +74,7 @@ class _Layout:
     @classmethod
     def of(cls, d: ModelData) -> "_Layout":
         rho_max, u_max, v_max, a_lo, a_hi, windows, ir_parts = 0.0, -np.inf, -np.inf, np.inf, -np.inf, set(), []
-        for c in d.pieces(neighbours=False):
+        for c in d.pass_pieces(neighbours=False):
             if len(c) == 0:
                 continue
             rho_max = max(rho_max, float(np.sqrt(np.max(c.rho2))))
@@ -167,7 +167,7 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
     layout = _Layout.of(d)
     sums = {name: BinSums() for name in ("range", "radius", "range_radius", "position", "brightness", "incidence")}
     stops = StopSums()
-    for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.pieces())):
+    for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.pass_pieces())):
         families = layout.families(c)
         add_families([sums[name] for name in families], c, p, list(families.values()))
         stops.add(c, p)
@@ -201,7 +201,7 @@ def compare_along(fit: ModelFit, d: ModelData, groups_of: Callable[[ModelData], 
     models in the same bins)."""
     sums = BinSums()
     totals: list[dict[int, float]] = [{} for _ in range(1 + len(others))]
-    for c in d.pieces():
+    for c in d.pass_pieces():
         groups, p = groups_of(c), fit.predict(c)
         sums.add(bin_columns(c, p), groups, covariate_of(c))
         for k, f in enumerate((fit, *others)):

@@ -22,7 +22,7 @@ log-likelihood per degree of freedom (lower is better).
 from __future__ import annotations
 
 import gc
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from ..models.result import chi2_sf
 from ..models.determinacy import LambdaStatus, lambda_status
 from ..models.progress import ProgressCounter
 from .consistency import ALPHA, Consistency
-from .residuals import residuals
+from .residuals import Residuals, residuals
 
 
 @dataclass
@@ -53,6 +53,8 @@ class Headline:
     #: does the data determine lambda (when the model fits it)? A fit whose lambda is not determined is
     #: never called "within noise" in words (`verdict`, `state`), whatever the statistics say
     lambda_status: LambdaStatus | None = None
+    #: the comparison the headline was computed from (every family's bins), for whoever shows it next
+    residuals: Residuals | None = field(default=None, repr=False, compare=False)
 
     @property
     def determined(self) -> bool:
@@ -118,6 +120,7 @@ def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
         chi2=stat, dof=dof, p_value=float(chi2_sf(stat, dof)), bins=len(b.log_ratio),
         consistency=r.consistency if checks else None,
         lambda_status=lambda_status(d, free=not fit.lam_fixed),
+        residuals=r,
     )
 
 

@@ -255,6 +255,6 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
         unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter, jobs=jobs)
     counter.more_may_come = False
     counter.step("residuals")
-    result = Diagnosis(source, d, steps, pl, residuals(fit, d), unexplained)
+    result = Diagnosis(source, d, steps, pl, steps[0].headline.residuals or residuals(fit, d), unexplained)
     counter.finish()
     return result

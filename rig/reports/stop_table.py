@@ -44,7 +44,7 @@ def stop_rows(fit: ModelFit, d: ModelData) -> list[StopRow]:
     """The table of `fit` on the pixels it was fitted to, `d` (visited a few stops at a time)."""
     labels = d.stops.label if d.stops is not None else None
     totals: dict[int, np.ndarray] = {}
-    for c in d.pieces():
+    for c in d.pass_pieces():
         var_model = np.broadcast_to(np.asarray(fit.predict(c).var_m2, dtype=float), c.z_m.shape)
         w = c.nu
         keys, sums = group_sums(c.stop, [1.0, w, w * c.z_m, c.n, c.m2_m2, w * var_model, c.fill])
