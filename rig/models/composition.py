@@ -129,8 +129,10 @@ class Model:
                 raise ValueError(why)
 
     def fit(self, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
-            hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True) -> ModelFit:
+            hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True,
+            warm: ModelFit | None = None) -> ModelFit:
         """Maximum likelihood (rig.models.optimise); `errors=False` skips the standard errors; parameters
         in `hold` stay at their `start` values; `grouped=False` fits every pixel even where grouped nodes
-        would do (rig.models.grouping)."""
-        return fit_model(self, d, start, errors=errors, hold=hold, grouped=grouped, exact_loglik=exact_loglik)
+        would do (rig.models.grouping); `warm`: this model's fit to nearly the same data, to refit from."""
+        return fit_model(self, d, start, errors=errors, hold=hold, grouped=grouped, exact_loglik=exact_loglik,
+                         warm=warm)

@@ -95,10 +95,16 @@ def _hessian(f, x: np.ndarray, steps: np.ndarray, *, diagonal: bool = False) -> 
 
 
 def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
-              hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True) -> ModelFit:
+              hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True,
+              warm: ModelFit | None = None) -> ModelFit:
     """Maximum likelihood over all pixels; standard errors from the inverse Hessian (Cramer-Rao), unless
     `errors` is False (ranking candidates needs only the likelihood; `with_errors` adds them later).
     Parameters named in `hold` stay at their `start` values (a quick conditional fit).
+
+    `warm`: the same model's fit to nearly the same data (a held-out fold's whole data). The fit then goes from its
+    values alone (not also from the physical exponent), in coordinates whitened by its optimiser's inverse-Hessian
+    estimate (`ModelFit.metric`): there the likelihood is nearly round, so L-BFGS-B's first steps are Newton's and
+    the stopping rule trusts that estimate from the first step (`NewtonStop`'s prior).
 
     Large data are fitted on their grouped nodes (`rig.models.grouping`, a second-order expansion of the
     likelihood about each small tile), when every effect of the model is smooth within a tile and `grouped`
@@ -116,6 +122,8 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
         for k, v in e.start(work, pred).items():
             values[f"{e.name}.{k}" if "." not in k else k] = v
         partial = partial + e
+    if warm is not None:
+        start = {**warm.values, **(start or {})}
     if start:
         values.update({k: v for k, v in start.items() if k in values})
     free = [(n, p) for n, p in model.free() if n not in hold]
@@ -149,14 +157,27 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
         if not (np.isfinite(ll) and np.all(np.isfinite(g))):
             return 1e30, np.zeros(len(y))
         slope = np.array([v[n] if n == "k" else _free_slope(yi, p) for (n, p), yi in zip(free, y)])
-        g_y = -g * slope / scale
-        stop.seen(y, g_y)  # the current start's stopping rule (made below)
-        return -ll / scale, g_y
+        return -ll / scale, -g * slope / scale
 
     gradient = analytic(model)
 
     starts = [pack(values)]
-    if model.effects and model.base.lam is None and "lambda" not in hold:
+    # the optimiser's coordinates x: y = y_ref + R x, R R' the warm fit's inverse-Hessian estimate (identity without)
+    y_ref, whiten = starts[0], _whitening(warm, names)
+
+    def to_y(x: np.ndarray) -> np.ndarray:
+        return x if whiten is None else y_ref + whiten @ x
+
+    def objective_x(x: np.ndarray) -> float:
+        return objective(to_y(x))
+
+    def objective_and_gradient_x(x: np.ndarray) -> tuple[float, np.ndarray]:
+        f, g = objective_and_gradient(to_y(x))
+        g_x = g if whiten is None else whiten.T @ g
+        stop.seen(x, g_x)  # the current start's stopping rule (made below)
+        return f, g_x
+
+    if model.effects and model.base.lam is None and "lambda" not in hold and warm is None:
         # effects trade off against lambda: also start from the physical exponent (paper: 3 with
         # the projector on, 2 off) with k refitted for it
         lam_phys = 3.0 if d.projector_on.mean() > 0.5 else 2.0
@@ -168,33 +189,59 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
     res = None
     with np.errstate(all="ignore"):
         for y0 in starts:
+            x0 = y0 if whiten is None else np.zeros(len(y0))
             # central differences: forward ones are too coarse on the flat ridges effects make (outliers' fraction
             # against their width), where they stopped L-BFGS-B several standard errors short of the optimum
             if gradient:
-                stop = NewtonStop(scale)  # stops L-BFGS-B once a Newton step would gain < 1e-6 nats
-                r = minimize(objective_and_gradient, y0, method="L-BFGS-B", jac=True, callback=stop,
+                # stops L-BFGS-B once a Newton step would gain < 1e-6 nats
+                stop = NewtonStop(scale, prior=None if whiten is None else np.eye(len(y0)))
+                r = minimize(objective_and_gradient_x, x0, method="L-BFGS-B", jac=True, callback=stop,
                              options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
                 if stop.stopped and _newton_gain_nats(r, scale) <= NM_FATOL_NATS:
                     r.success, r.message = True, f"CONVERGENCE: a Newton step would gain {stop.gain_nats:.1e} nats"
             else:
-                r = minimize(objective, y0, method="L-BFGS-B", jac="3-point",
+                r = minimize(objective_x, x0, method="L-BFGS-B", jac="3-point",
                              options={"maxiter": 500, "ftol": FTOL, "gtol": 1e-10})
             # polish with Nelder-Mead when L-BFGS-B stops early on a flat ridge; bounded, because every
             # evaluation visits every pixel (unbounded, a diagnosis could spend an hour polishing candidates)
             if not r.success and len(y0) > 1 and _newton_gain_nats(r, scale) > NM_FATOL_NATS:
                 budget = NM_EVALUATIONS_PER_PARAMETER * (len(y0) + 1)
-                r2 = minimize(objective, r.x, method="Nelder-Mead",
+                r2 = minimize(objective_x, r.x, method="Nelder-Mead",
                               options={"maxiter": budget, "maxfev": budget, "xatol": math.inf, "fatol": NM_FATOL_NATS / scale})
                 if r2.fun <= r.fun:
                     r = r2
             if res is None or r.fun < res.fun:
                 res = r
     y0 = starts[0]
-    best = unpack(res.x)
+    best = unpack(to_y(res.x))
     ll = model.loglik(best, d if exact_loglik else work)
     se, cov, notes = _standard_errors(model, best, work, names) if errors else ({}, None, {})
     return ModelFit(model, best, se, ll, converged=bool(res.success) or res.fun < objective(y0), message=str(res.message),
-                    covariance=cov, error_notes=notes, **summary)
+                    covariance=cov, error_notes=notes, metric=_metric(res, whiten, names), **summary)
+
+
+def _metric(res, whiten: np.ndarray | None, names: list[str]) -> tuple[tuple[str, ...], np.ndarray] | None:
+    """L-BFGS-B's inverse-Hessian estimate at its end, in the free coordinates y (`fit_model`), with the names of
+    the parameters it is over; None when the fit ended elsewhere (a Nelder-Mead polish) or the estimate is unusable."""
+    try:
+        h = np.asarray(res.hess_inv.todense(), dtype=float)
+    except AttributeError:
+        return None
+    if whiten is not None:
+        h = whiten @ h @ whiten.T
+    return (tuple(names), h) if h.shape == (len(names), len(names)) and np.all(np.isfinite(h)) else None
+
+
+def _whitening(warm: ModelFit | None, names: list[str]) -> np.ndarray | None:
+    """R with R R' the warm fit's inverse-Hessian estimate over the same free parameters (`_metric`), or None (no
+    warm fit, other parameters free, or an estimate that is not positive definite)."""
+    metric = warm.metric if warm is not None else None
+    if metric is None or list(metric[0]) != names:
+        return None
+    try:
+        return np.linalg.cholesky(0.5 * (metric[1] + metric[1].T))
+    except np.linalg.LinAlgError:
+        return None
 
 
 def fit_data(model: ComposedModel, d: ModelData) -> ModelData:

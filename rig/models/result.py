@@ -46,6 +46,9 @@ class ModelFit:
     likelihood: str = "Gamma, of the pixel variances"
     #: for each free parameter without a standard error (NaN), why, in words (`rig.models.error_notes`)
     error_notes: dict[str, str] = field(default_factory=dict)
+    #: the optimiser's inverse-Hessian estimate at the optimum, in its free coordinates, with the names it is over
+    #: (`rig.models.optimise._metric`): what a refit on nearly the same data starts from (`warm`)
+    metric: tuple[tuple[str, ...], np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     # -- criteria ----------------------------------------------------------------------------
     @property

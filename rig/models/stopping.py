@@ -28,8 +28,9 @@ class NewtonStop:
     `seen(x, g)` must be called by the objective with each point and gradient it evaluates: the callback is given
     only the iterate, whose gradient is the last one seen there."""
 
-    def __init__(self, scale: float, stop_nats: float = STOP_NATS):
+    def __init__(self, scale: float, stop_nats: float = STOP_NATS, prior: np.ndarray | None = None):
         self.scale = scale
+        self.prior = prior  # an inverse Hessian known before the first step (a warm refit's), trusted from it
         self.stop_nats = stop_nats
         self.start: tuple[np.ndarray, np.ndarray] | None = None
         self.last: tuple[np.ndarray, np.ndarray] | None = None
@@ -49,9 +50,9 @@ class NewtonStop:
         if not self.iterates and self.start is not None:
             self.iterates.append(self.start)
         self.iterates.append(self.last)
-        if len(self.iterates) <= x.size:  # one step per parameter before the estimate is trusted
+        if self.prior is None and len(self.iterates) <= x.size:  # one step per parameter before the estimate is trusted
             return
-        h = inverse_hessian(self.iterates)
+        h = inverse_hessian(self.iterates, self.prior)
         if h is None:
             return
         g = self.last[1]
@@ -61,17 +62,17 @@ class NewtonStop:
             raise StopIteration
 
 
-def inverse_hessian(iterates: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray | None:
-    """The BFGS inverse-Hessian estimate from successive (x, gradient) pairs, started from the last pair's scaled
-    identity (s'y / y'y), as L-BFGS does; pairs without positive curvature (s'y <= 0) are skipped. None when no
-    pair has it."""
+def inverse_hessian(iterates: list[tuple[np.ndarray, np.ndarray]], prior: np.ndarray | None = None) -> np.ndarray | None:
+    """The BFGS inverse-Hessian estimate from successive (x, gradient) pairs, started from `prior` or else the last
+    pair's scaled identity (s'y / y'y), as L-BFGS does; pairs without positive curvature (s'y <= 0) are skipped.
+    None when no pair has it and there is no prior."""
     pairs = [(x1 - x0, g1 - g0) for (x0, g0), (x1, g1) in zip(iterates, iterates[1:])]
     pairs = [(s, y) for s, y in pairs if float(s @ y) > 1e-300 * max(float(y @ y), 1e-300)]
     if not pairs:
-        return None
+        return None if prior is None else np.array(prior, dtype=float)
     s, y = pairs[-1]
     n = s.size
-    h = np.eye(n) * float(s @ y) / float(y @ y)
+    h = np.array(prior, dtype=float) if prior is not None else np.eye(n) * float(s @ y) / float(y @ y)
     for s, y in pairs:
         rho = 1.0 / float(s @ y)
         v = np.eye(n) - rho * np.outer(s, y)
