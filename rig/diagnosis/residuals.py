@@ -73,6 +73,14 @@ class _Layout:
 
     @classmethod
     def of(cls, d: ModelData) -> "_Layout":
+        """The bins of `d`, kept with it: a diagnosis compares several fits with the same data."""
+        kept = d.__dict__.get("residual_layout")
+        if kept is None:
+            kept = d.__dict__["residual_layout"] = cls._of(d)
+        return kept
+
+    @classmethod
+    def _of(cls, d: ModelData) -> "_Layout":
         rho_max, u_max, v_max, a_lo, a_hi, windows, ir_parts = 0.0, -np.inf, -np.inf, np.inf, -np.inf, set(), []
         for c in d.pass_pieces(neighbours=False):
             if len(c) == 0:

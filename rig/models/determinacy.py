@@ -115,5 +115,9 @@ def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray) -> tuple[float, ...]:
 
 
 def lambda_status(d: ModelData, *, free: bool = True) -> LambdaStatus:
-    """Whether the pixels of `d` (the data a fit used) determine lambda; `free=False` for a model that fixes it."""
-    return LambdaStatus(free, distinct_ranges_m(d.z_m, d.stop))
+    """Whether the pixels of `d` (the data a fit used) determine lambda; `free=False` for a model that fixes it.
+    The ranges are kept with `d`: every headline of a diagnosis asks of the same data (0.3-0.5 s a time on a sweep)."""
+    ranges = d.__dict__.get("distinct_ranges_m")
+    if ranges is None:
+        ranges = d.__dict__["distinct_ranges_m"] = distinct_ranges_m(d.z_m, d.stop)
+    return LambdaStatus(free, ranges)
