@@ -85,7 +85,10 @@ def _reader(path: Path):
         from rosbags.typesys import Stores, get_typestore
     except ImportError:  # pragma: no cover - a dependency of rig
         raise FolderImportError("reading bags needs rosbags; pip install rosbags") from None
-    return AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+    # a ROS 1 bag carries its messages' definitions, and rosbags reads them from it; the ROS 2 Humble store (0.45 s of
+    # imports: each distro's store builds on the one before) is only for a rosbag2 that has none (rosbags' AnyReader)
+    ros1 = Path(path).suffix == ".bag"
+    return AnyReader([path], default_typestore=None if ros1 else get_typestore(Stores.ROS2_HUMBLE))
 
 
 def _field(msg: Any, name: str) -> Any:
