@@ -39,50 +39,31 @@ NM_FATOL_NATS = 1e-4
 FTOL = 1e-15
 
 
-def _sine_mapped(p: Param) -> bool:
-    """Whether a parameter bounded on both sides moves in MINUIT's sine map (`_from_free`): those whose lower bound, 0,
-    is "none of the effect" (a noise's size, a fraction), where a fit of data without the effect must end. Others
-    keep the logistic map: censoring's threshold, from 0.005 to 20 px, has a plateau where it cuts nothing, and the
-    sine map's larger steps in the middle of the range carried a candidate onto it (0.82 px, 0 nats, against
-    0.036 px and 23,673 nats: the blind table's censoring seed 1005)."""
-    return p.min == 0.0 and math.isfinite(p.max)
-
-
 def _to_free(x: float, p: Param) -> float:
-    """The free coordinate of a value bounded on both sides (`_from_free`); a value unbounded on a side is its own."""
+    """The free coordinate of a value bounded on both sides: x = lo + (hi - lo) (1 + sin y) / 2 (MINUIT's map, as
+    lmfit's), y in [-pi/2, pi/2]; a value unbounded on a side is its own coordinate."""
     lo, hi = p.min, p.max
     if math.isfinite(lo) and math.isfinite(hi):
         t = (min(max(x, lo), hi) - lo) / (hi - lo)
-        t = min(max(t, 1e-9), 1 - 1e-9)  # a start on the bound, where dx/dy vanishes, could never leave it
-        return math.asin(2.0 * t - 1.0) if _sine_mapped(p) else math.log(t / (1 - t))
+        t = min(max(t, 1e-9), 1 - 1e-9)  # a start on the bound, where dx/dy is 0, could never leave it
+        return math.asin(2.0 * t - 1.0)
     return x
 
 
 def _from_free(y: float, p: Param) -> float:
-    """`_to_free`'s inverse: x = lo + (hi - lo) (1 + sin y) / 2 (MINUIT's map, as lmfit's) for `_sine_mapped`
-    parameters, else the logistic x = lo + (hi - lo) / (1 + e^-y). In the sine map the bound is at a finite y where
-    dx/dy = 0: a likelihood whose best value is on the bound is flat there, and Newton's step reaches it at once; the
-    logistic map reaches it only as y goes to infinity, about a unit of y a step (read_noise on the demo, where the
-    data have none: 49 gradients against 19), and a step that overshoots into its flat end stops the fit there
-    (noise_floor on the 'none' scenario, seed 3: 2e-8 px, 4.7 nats below the optimum at 1.7e-4 px)."""
+    """`_to_free`'s inverse. A bound is reached at a finite y, where dx/dy is 0: a likelihood whose best value is on the
+    bound is then flat there, and Newton's step reaches it at once (the logistic map reached a bound only as y went to
+    infinity, a unit of y a step: 41-49 gradients for read_noise and censoring on the demo, where the data have none)."""
     lo, hi = p.min, p.max
     if math.isfinite(lo) and math.isfinite(hi):
-        if _sine_mapped(p):
-            return lo + (hi - lo) * 0.5 * (1.0 + math.sin(y))
-        return lo + (hi - lo) / (1 + math.exp(-min(max(y, -700.0), 700.0)))  # a wild step must not overflow
+        return lo + (hi - lo) * 0.5 * (1.0 + math.sin(y))
     return y
 
 
 def _free_slope(y: float, p: Param) -> float:
-    """d x / d y of `_from_free`: (hi - lo) cos(y) / 2 in the sine map, (hi - lo) s (1 - s) in the logistic (s the
-    logistic of y), 1 for a parameter unbounded on a side."""
+    """d x / d y of `_from_free`: (hi - lo) cos(y) / 2 for a bounded parameter, 1 otherwise."""
     if math.isfinite(p.min) and math.isfinite(p.max):
-        if _sine_mapped(p):
-            return (p.max - p.min) * 0.5 * math.cos(y)
-        if abs(y) >= 700.0:
-            return 0.0
-        s = 1.0 / (1.0 + math.exp(-y))
-        return (p.max - p.min) * s * (1.0 - s)
+        return (p.max - p.min) * 0.5 * math.cos(y)
     return 1.0
 
 
