@@ -40,30 +40,28 @@ FTOL = 1e-15
 
 
 def _to_free(x: float, p: Param) -> float:
-    """The free coordinate of a value bounded on both sides: x = lo + (hi - lo) (1 + sin y) / 2 (MINUIT's map, as
-    lmfit's), y in [-pi/2, pi/2]; a value unbounded on a side is its own coordinate."""
     lo, hi = p.min, p.max
     if math.isfinite(lo) and math.isfinite(hi):
         t = (min(max(x, lo), hi) - lo) / (hi - lo)
-        t = min(max(t, 1e-9), 1 - 1e-9)  # a start on the bound, where dx/dy is 0, could never leave it
-        return math.asin(2.0 * t - 1.0)
+        t = min(max(t, 1e-9), 1 - 1e-9)
+        return math.log(t / (1 - t))
     return x
 
 
 def _from_free(y: float, p: Param) -> float:
-    """`_to_free`'s inverse. A bound is reached at a finite y, where dx/dy is 0: a likelihood whose best value is on the
-    bound is then flat there, and Newton's step reaches it at once (the logistic map reached a bound only as y went to
-    infinity, a unit of y a step: 41-49 gradients for read_noise and censoring on the demo, where the data have none)."""
     lo, hi = p.min, p.max
     if math.isfinite(lo) and math.isfinite(hi):
-        return lo + (hi - lo) * 0.5 * (1.0 + math.sin(y))
+        return lo + (hi - lo) / (1 + math.exp(-min(max(y, -700.0), 700.0)))  # a wild step must not overflow
     return y
 
 
 def _free_slope(y: float, p: Param) -> float:
-    """d x / d y of `_from_free`: (hi - lo) cos(y) / 2 for a bounded parameter, 1 otherwise."""
+    """d x / d y of `_from_free`: (hi - lo) s (1 - s) for a bounded parameter (s the logistic of y), 1 otherwise."""
     if math.isfinite(p.min) and math.isfinite(p.max):
-        return (p.max - p.min) * 0.5 * math.cos(y)
+        if abs(y) >= 700.0:
+            return 0.0
+        s = 1.0 / (1.0 + math.exp(-y))
+        return (p.max - p.min) * s * (1.0 - s)
     return 1.0
 
 
