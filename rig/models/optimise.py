@@ -102,9 +102,10 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
     Parameters named in `hold` stay at their `start` values (a quick conditional fit).
 
     `warm`: the same model's fit to nearly the same data (a held-out fold's whole data). The fit then goes from its
-    values alone (not also from the physical exponent), in coordinates whitened by its optimiser's inverse-Hessian
-    estimate (`ModelFit.metric`): there the likelihood is nearly round, so L-BFGS-B's first steps are Newton's and
-    the stopping rule trusts that estimate from the first step (`NewtonStop`'s prior).
+    values alone (not also from the physical exponent), in coordinates whitened by its curvature (its Cramer-Rao
+    covariance, else its optimiser's estimate, `ModelFit.metric`; none when a parameter sits on its bound:
+    `_whitening`): there the likelihood is nearly round, so L-BFGS-B's first steps are Newton's and the stopping
+    rule trusts that curvature from the first step (`NewtonStop`'s prior).
 
     Large data are fitted on their grouped nodes (`rig.models.grouping`, a second-order expansion of the
     likelihood about each small tile), when every effect of the model is smooth within a tile and `grouped`
