@@ -65,6 +65,13 @@ def _free_slope(y: float, p: Param) -> float:
     return 1.0
 
 
+def _free_slopes(free: list, y: np.ndarray) -> np.ndarray:
+    """d x / d y for each free parameter at its free coordinate: k enters as ln k (x = e^y, as `fit_model` unpacks
+    it), the others by `_free_slope`."""
+    return np.array([math.exp(min(max(yi, -700.0), 700.0)) if n == "k" else _free_slope(yi, p)
+                     for (n, p), yi in zip(free, y)])
+
+
 def _newton_gain_nats(r, scale: float) -> float:
     """What a Newton step from L-BFGS-B's end point would still gain, in nats: 0.5 g' H^-1 g (the Newton decrement's
     half square; g the objective's gradient there, H^-1 L-BFGS-B's own inverse-Hessian estimate), times `scale`, the
@@ -158,8 +165,7 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
             return 1e30, np.zeros(len(y))
         if not (np.isfinite(ll) and np.all(np.isfinite(g))):
             return 1e30, np.zeros(len(y))
-        slope = np.array([v[n] if n == "k" else _free_slope(yi, p) for (n, p), yi in zip(free, y)])
-        return -ll / scale, -g * slope / scale
+        return -ll / scale, -g * _free_slopes(free, y) / scale
 
     gradient = analytic(model)
 
@@ -249,7 +255,7 @@ def _whitening(warm: ModelFit | None, names: list[str], y: np.ndarray, free: lis
         return None
     cov = warm.covariance
     if cov is not None and cov.shape == (len(names), len(names)) and np.all(np.isfinite(cov)):
-        slope = np.array([math.exp(yi) if n == "k" else _free_slope(yi, p) for (n, p), yi in zip(free, y)])
+        slope = _free_slopes(free, y)
         if np.all(slope > 0):
             try:
                 return np.linalg.cholesky(0.5 * (cov + cov.T) / np.outer(slope, slope) * scale)
