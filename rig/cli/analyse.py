@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .memory import keep_large_blocks, return_large_blocks_at_once
 from .options import EXIT_UNDETERMINED, refuse_unwritable
 from .shared import (catalogue_of, check_window, fit_or_refuse, model_data, parse_model_option, progress_line,
                      shared_options, window_options)
@@ -83,8 +82,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
     _refuse_plot_format(args.plot)
     refuse_unwritable(args.plot, "--plot")
     refuse_unwritable(args.table, "--table")
-    if not args.model and not args.many:
-        return_large_blocks_at_once()
     if args.scheduler and not args.many:
         raise UsageError("--scheduler runs the fits of many recordings on a cluster; add --many (and give a folder), or drop it")
     if args.report:
@@ -104,7 +101,6 @@ def cmd_fit(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise UsageError(str(e)) from None
         counter.step("headline error: every statistic the paper's fit predicts")
-        keep_large_blocks()
         h = headline(r.fit, r.samples.positive_variance())
         counter.finish()
     if args.json:

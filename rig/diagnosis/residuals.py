@@ -81,21 +81,25 @@ class _Layout:
 
     @classmethod
     def _of(cls, d: ModelData) -> "_Layout":
-        rho_max, u_max, v_max, a_lo, a_hi, windows, ir_parts = 0.0, -np.inf, -np.inf, np.inf, -np.inf, set(), []
+        rho_max, u_max, v_max, a_lo, a_hi, windows = 0.0, -np.inf, -np.inf, np.inf, -np.inf, set()
+        ir_all, n_ir = np.empty(len(d), np.float32), 0  # the finite brightnesses, filled in place: one copy of them
         for c in d.pass_pieces(neighbours=False):
             if len(c) == 0:
                 continue
             rho_max = max(rho_max, float(np.sqrt(np.max(c.rho2))))
             u_max, v_max = max(u_max, float(np.nanmax(c.u_px))), max(v_max, float(np.nanmax(c.v_px)))
-            angle = _angle(c)
-            a_lo, a_hi = min(a_lo, float(angle.min())), max(a_hi, float(angle.max()))
+            cos = c.cos_inc  # the angle's extremes are those of its cosine (arccos decreases): no angle per pixel here
+            a_lo, a_hi = min(a_lo, _degrees(float(cos.max()))), max(a_hi, _degrees(float(cos.min())))
             rb = range_bin_index(c.z_m)
             windows.update(range(int(rb.min()), int(rb.max()) + 1))  # labels; empty windows have no bin
             ir = c.ir
-            ir_parts.append(ir[np.isfinite(ir)].astype(np.float32))
+            ir = ir[np.isfinite(ir)]
+            ir_all[n_ir:n_ir + len(ir)] = ir
+            n_ir += len(ir)
         positions = len(d) and np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()
-        ir = np.concatenate(ir_parts) if ir_parts else np.zeros(0)
-        ir_edges = np.quantile(ir, np.linspace(0, 1, 7)).astype(np.float64) if ir.size > 100 else None
+        # partitioned in place (overwrite_input): no second copy of every pixel's brightness at the headline's peak
+        ir_edges = np.quantile(ir_all[:n_ir], np.linspace(0, 1, 7), overwrite_input=True).astype(np.float64) if n_ir > 100 else None
+        del ir_all
         angle_edges = np.linspace(a_lo, a_hi + 1e-9, 6) if a_hi - a_lo > 1 else None
         return cls(np.linspace(0, rho_max + 1e-9, 6), (u_max + 1, v_max + 1) if positions else None, ir_edges,
                    angle_edges, windows)
@@ -141,6 +145,11 @@ class _Layout:
 
 def _angle(c: ModelData) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c.cos_inc, -1, 1)))
+
+
+def _degrees(cos: float) -> float:
+    """The angle of cosine `cos`, deg, as `_angle` makes it."""
+    return float(np.degrees(np.arccos(np.clip(cos, -1, 1))))
 
 
 class StopSums:

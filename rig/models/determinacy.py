@@ -91,15 +91,18 @@ class LambdaStatus:
                 "span": None if not self.ranges_m else self.span}
 
 
-def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray) -> tuple[float, ...]:
-    """The distinct ranges, m, that pixels at mean range `z_m` from stops `stop` lie at (see the module)."""
+def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray, slices: list[slice] | None = None) -> tuple[float, ...]:
+    """The distinct ranges, m, that pixels at mean range `z_m` from stops `stop` lie at (see the module). `slices`:
+    each stop's rows when they come stop by stop (`ModelData.stop_slices`), which spares a search per stop."""
     z_m, stop = np.asarray(z_m, dtype=float), np.asarray(stop)
-    ok = np.isfinite(z_m) & (z_m > 0)
-    z_m, stop = z_m[ok], stop[ok]
+    groups = [z_m[sl] for sl in slices] if slices is not None else [z_m[stop == s] for s in np.unique(stop)]
     levels: list[float] = []
     step = np.log(RANGE_STEP)
-    for s in np.unique(stop):
-        z = z_m[stop == s]
+    for z in groups:
+        ok = np.isfinite(z) & (z > 0)
+        z = z if ok.all() else z[ok]
+        if len(z) == 0:
+            continue
         lo, mid, hi = np.percentile(z, [10, 50, 90])
         if hi / lo < FLAT_SPREAD:
             levels.append(float(mid))
@@ -119,5 +122,5 @@ def lambda_status(d: ModelData, *, free: bool = True) -> LambdaStatus:
     The ranges are kept with `d`: every headline of a diagnosis asks of the same data (0.3-0.5 s a time on a sweep)."""
     ranges = d.__dict__.get("distinct_ranges_m")
     if ranges is None:
-        ranges = d.__dict__["distinct_ranges_m"] = distinct_ranges_m(d.z_m, d.stop)
+        ranges = d.__dict__["distinct_ranges_m"] = distinct_ranges_m(d.z_m, d.stop, d.stop_slices())
     return LambdaStatus(free, ranges)
