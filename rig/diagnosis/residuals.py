@@ -162,7 +162,8 @@ class StopSums:
         fill_p = np.broadcast_to(np.asarray(pred.fill if pred.fill is not None else 1.0, dtype=float), c.z_m.shape)
         common = np.broadcast_to(np.asarray(pred.common_inv2, dtype=float), c.z_m.shape)
         gain = np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), c.z_m.shape)
-        z4 = c.z_m**4
+        z2 = c.z_m * c.z_m
+        z4 = z2 * z2  # Z^4, m^4; not c.z_m**4: numpy's pow costs 15 ns a value, 30 times a product's
         independent = (pred.var_m2 - common * z4) / z4 * gain
         frames = c.n / np.maximum(c.fill, 1e-12)
         slices = c.stop_slices()

@@ -56,10 +56,12 @@ class StopSource:
     def drift_var_m2(self, z_m: np.ndarray) -> np.ndarray:
         """The drift variance at range z_m (m^2): D Z^4 from the whole-frame series (d(1/z) = -dz / z^2), or,
         for recordings without it, the central region's wander scaled to the pixel's range."""
+        z2 = z_m * z_m  # Z^4 as (Z^2)^2: numpy's pow costs 30 products a value
         if self.drift_inverse is not None:
-            return self.drift_inverse * z_m**4
+            return self.drift_inverse * (z2 * z2)
         if np.isfinite(self.drift_center_m):
-            return self.drift_m2 * (z_m / self.drift_center_m) ** 4
+            r2 = z2 / self.drift_center_m**2
+            return self.drift_m2 * (r2 * r2)
         return np.zeros_like(z_m)
 
 

@@ -78,8 +78,16 @@ class ShapeStatistics:
         groups = slices if slices is not None else [np.flatnonzero(self.stop == s) for s in np.unique(self.stop)]
         nu = self.nu
         for m in groups:
-            m2_img, nu_img = np.zeros(shape), np.zeros(shape)
             vm, um = v[m], u[m]
+            place = vm * shape[1] + um
+            if len(place) == shape[0] * shape[1] and place[0] == 0 and np.all(place[1:] - place[:-1] == 1):
+                # the whole image, row by row (a stop as loaded): the rows are the image, no scattering
+                m2_sum = uniform_filter(self.m2_m2[m].reshape(shape), KURTOSIS_WINDOW_PX, mode="constant") * size
+                nu_sum = uniform_filter(nu[m].reshape(shape), KURTOSIS_WINDOW_PX, mode="constant") * size
+                m2_out[m] = m2_sum.ravel() - self.m2_m2[m]
+                nu_out[m] = np.round(nu_sum.ravel() - nu[m])
+                continue
+            m2_img, nu_img = np.zeros(shape), np.zeros(shape)
             m2_img[vm, um] = self.m2_m2[m]
             nu_img[vm, um] = nu[m]
             m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
