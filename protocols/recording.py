@@ -423,7 +423,7 @@ def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
     if s.n_frames < 0 or (count.size and int(np.max(count)) > s.n_frames > 0):
         raise bad("count", f"reaches {int(np.max(count))} samples, more than the stop's {s.n_frames} frames")
     valid = count > 0
-    mean = st.mean_m[valid]
+    mean = st.mean_m if valid.all() else st.mean_m[valid]  # no copy of the image when every pixel has samples
     if mean.size and not np.all(np.isfinite(mean)):
         raise bad("mean_m", f"is not finite at {int(np.sum(~np.isfinite(mean)))} pixels that have samples")
     if mean.size:
@@ -432,8 +432,9 @@ def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
             raise bad("mean_m", f"has a median of {med:g}, not a range in metres",
                       "statistics must be in metres (mm divided by 1000); see docs/data-format.md")
     two = count > 1
+    every = two.all()
     for name in ("m2_m2", "m4_m4"):
-        arr = getattr(st, name)[two]
+        arr = getattr(st, name) if every else getattr(st, name)[two]
         if name == "m4_m4" and np.all(np.isnan(arr)):
             continue  # optional, absent
         if arr.size and (not np.all(np.isfinite(arr)) or np.any(arr < 0)):

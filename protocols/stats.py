@@ -18,6 +18,7 @@ r_1 = c_1 / c_0). Whole frames identical to the previous one at every pixel vali
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from drivers.compiled import njit
@@ -46,8 +47,13 @@ class PixelStats:
     @property
     def variance_m2(self) -> np.ndarray:
         """Unbiased per-pixel variance (divides by count - 1); NaN where count < 2."""
+        return self.variance_m2_in(...)
+
+    def variance_m2_in(self, region: Any) -> np.ndarray:
+        """`variance_m2` of the pixels `region` indexes (such as the slices of `center_box`), computed there only."""
+        count = self.count[region]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(self.count > 1, self.m2_m2 / (self.count - 1), np.nan)
+            return np.where(count > 1, self.m2_m2[region] / (count - 1), np.nan)
 
     @property
     def kurtosis(self) -> np.ndarray:

@@ -55,9 +55,11 @@ def pooled_lag1(stats: Any) -> tuple[float, float, float]:
     ok = (p > 0) & (n > 1)
     if not ok.any():
         return 0.0, 0.0, 0.0
-    v = stats.m2_m2[ok] / (n[ok] - 1)
-    num = float(np.sum(stats.lag1_m2[ok] + p[ok] * v / n[ok]))
-    return num, float(np.sum(p[ok] * v)), float(np.sum(p[ok]))
+    every = ok.all()  # the usual case: every pixel has a pair, and gathering them would copy every array
+    n, p, m2, lag = (n, p, stats.m2_m2, stats.lag1_m2) if every else (n[ok], p[ok], stats.m2_m2[ok], stats.lag1_m2[ok])
+    v = m2 / (n - 1)
+    num = float(np.sum(lag + p * v / n))
+    return num, float(np.sum(p * v)), float(np.sum(p))
 
 
 def rho_and_se(num: float, den: float, pairs: float) -> tuple[float, float]:
