@@ -26,8 +26,8 @@ class Base(BaseModel):
 
     def shot(self, p: dict[str, float], d: ModelData) -> np.ndarray:
         """k^2 Z^(2 lambda) (m^2), as exp(2 lambda ln Z): a power with a non-integer exponent costs several times
-        an exponential, and ln Z is kept with the data (`_ln_z`)."""
-        return p["k"] ** 2 * np.exp(2.0 * p["lambda"] * _ln_z(d))
+        an exponential, and ln Z is kept with the data (`ModelData.ln_z0_m`)."""
+        return p["k"] ** 2 * np.exp(2.0 * p["lambda"] * d.ln_z0_m)
 
     def shot_tangent(self, p: dict[str, float], d: ModelData, shot: np.ndarray, t: Any) -> np.ndarray | None:
         """d shot / d k = 2 shot / k; d shot / d lambda = 2 ln(Z) shot."""
@@ -35,19 +35,11 @@ class Base(BaseModel):
         if (i := t.row(self, "k")) is not None:
             rows.append((i, 2.0 * shot / p["k"]))
         if (i := t.row(self, "lambda")) is not None:
-            rows.append((i, 2.0 * _ln_z(d) * shot))
+            rows.append((i, 2.0 * d.ln_z0_m * shot))
         return t.seeded(rows)
 
     def __add__(self, other: Any) -> Model:
         return Model.of(self) + other
-
-
-def _ln_z(d: ModelData) -> np.ndarray:
-    """ln of each row's true range Z (m), kept with `d`: every evaluation of a fit raises Z to a new power."""
-    own = d.__dict__.get("ln_z0_m")
-    if own is None:
-        own = d.__dict__["ln_z0_m"] = np.log(d.z0_m)
-    return own
 
 
 power_law = Base("power_law", None, "the paper's model: k and lambda free")

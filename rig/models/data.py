@@ -75,7 +75,7 @@ class StopTable:
 #: covariates computed from the stop sources when first used (or given, for data built by hand)
 LAZY = ("ir", "fill", "rho2", "cos_inc", "ambient_ratio", "drift_var_m2", "projector_on", "x_norm", "y_norm")
 #: per-pixel quantities derived from the data alone, cached, and handed to chunks and selections as slices
-DERIVED = ("nu", "s2_m2", "neighbour_variance", "pixel_kurtosis", "z0_m", "range_group", "kurtosis_usable",
+DERIVED = ("nu", "s2_m2", "neighbour_variance", "pixel_kurtosis", "z0_m", "ln_z0_m", "range_group", "kurtosis_usable",
            "excess_measured", "gamma_shape", "grid_offset")
 
 
@@ -150,6 +150,9 @@ class ModelData(ShapeStatistics):
                     out.__dict__[name] = tuple(a[rows] for a in v) if isinstance(v, tuple) else v[rows]
             if "kurtosis_by_range" in self.__dict__:
                 out.__dict__["kurtosis_by_range"] = self.__dict__["kurtosis_by_range"]
+            if "loglik_positions" in self.__dict__:  # the likelihood's row positions, with their key (rig.models.likelihood)
+                key, *positions = self.__dict__["loglik_positions"]
+                out.__dict__["loglik_positions"] = (key, *(a[rows] for a in positions))
         return out
 
     def select(self, mask: np.ndarray) -> "ModelData":
@@ -271,6 +274,11 @@ class ModelData(ShapeStatistics):
         stop_pooled = np.bincount(self.stop, weights=self.m2_m2) / np.maximum(np.bincount(self.stop, weights=self.nu), 1e-300)
         v = np.where(np.isfinite(v), v, stop_pooled[self.stop])
         return self.z_m / (1.0 + v / self.z_m**2)
+
+    @cached_property
+    def ln_z0_m(self) -> np.ndarray:
+        """ln of each row's true range `z0_m` (m): every evaluation of a fit raises Z to a new power (`Base.shot`)."""
+        return np.log(self.z0_m)
 
     @cached_property
     def grid_offset(self) -> np.ndarray:
