@@ -155,13 +155,12 @@ class RealSenseCamera(DepthCamera):
             self._sensor = self._depth_sensor(rs, dev)
             if self.preset is not None and self._playback is None:
                 self._apply_preset(rs)
-            if self._playback is not None:
-                # a recording's options are read before it plays: read while the SDK's playback thread replays the
-                # file, they corrupted the heap now and then (about 1 open in 300 with three at once on 2 cores)
-                self._info = self._read_info(*self._choose_profiles(rs, self.stream_ir))
+            # read before streaming: a recording's options read while the SDK's playback thread replays the file
+            # corrupted the heap now and then (about 1 open in 300 with three at once on 2 cores)
+            self._info = read_info(rs, self._dev, self._sensor, *self._choose_profiles(rs, self.stream_ir), name=self.name,
+                                   playback_file=self.file if self._playback is not None else None, record=self.record,
+                                   advanced_mode=self._playback is None and self._given_device is None)
             self._start(with_ir=self.stream_ir)
-            if self._playback is None:
-                self._info = self._read_info(self._profiles[0], self._ir_profile)
         except CameraError:
             self.close()
             raise
@@ -169,11 +168,6 @@ class RealSenseCamera(DepthCamera):
             self.close()
             raise CameraError(f"{self.name}: the SDK refused to start the camera ({one_line(e)}); "
                               "unplug and replug it, check that no other program uses it, and try again") from None
-
-    def _read_info(self, depth_profile: Any, ir_profile: Any) -> CameraInfo:
-        return read_info(self._rs, self._dev, self._sensor, depth_profile, ir_profile, name=self.name,
-                         playback_file=self.file if self._playback is not None else None, record=self.record,
-                         advanced_mode=self._playback is None and self._given_device is None)
 
     def close(self) -> None:
         if self._buffer is not None:
