@@ -1,9 +1,10 @@
-"""python -m benchmarks [--quick] [--workdir DIR] [--keep] [--json FILE] [--only NAME ...]
+"""python -m benchmarks [--quick] [--workdir DIR] [--keep] [--json FILE] [--only NAME ...] [--repeat N]
 
 Every figure against a baseline measured in the same run (see benchmarks/__init__.py); prints a Markdown table
 (figure, ours, baseline, ratio, target, pass/fail) and writes the figures and the machine to JSON. --quick uses
 a 212x120 sweep of 30 frames a stop and one seed of the blind table (a few minutes) instead of the full 848x480 x 300
-and ten seeds (about half an hour, of which the blind table is 15-20 minutes).
+and ten seeds (about half an hour, of which the blind table is 15-20 minutes). --repeat N runs the groups whose
+figures are single commands (commands, small) N times, each run with its own baseline, and reports the medians.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 from . import capture, data, fitting, importing
-from .figures import table, write_json
+from .figures import median_of_runs, table, write_json
 
 GROUPS = ("streaming", "capture", "camera", "run", "commands", "small", "per-sample", "scaling", "import", "table")
 
@@ -27,6 +28,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", action="store_true", help="keep the recordings for the next run (with --workdir)")
     ap.add_argument("--json", type=Path, default=Path("benchmark-results.json"), help="where the figures go")
     ap.add_argument("--only", nargs="*", choices=GROUPS, help="only these groups of figures")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N",
+                    help="run the commands and small groups N times (each with its own baseline): medians")
     args = ap.parse_args(argv)
     size = data.QUICK if args.quick else data.FULL
     work = args.workdir or Path(tempfile.mkdtemp(prefix="rig-bench-"))
@@ -52,11 +55,12 @@ def main(argv: list[str] | None = None) -> int:
                                       "s", "about a minute", run_wall <= 90.0, "the fake camera's rendering alone",
                                       note=f"wall {run_wall:.0f} s, {frames / run_wall:.0f} frames/s"))
             if "commands" in want:
-                figures += fitting.commands(sweep, work)
+                figures += median_of_runs([fitting.commands(sweep, work) for _ in range(max(1, args.repeat))])
             if "scaling" in want:
                 figures += fitting.scaling(sweep)
         if "small" in want:
-            figures += fitting.small(data.demo_recording(work), work)
+            demo = data.demo_recording(work)
+            figures += median_of_runs([fitting.small(demo, work) for _ in range(max(1, args.repeat))])
         if "per-sample" in want:
             figures += fitting.against_per_sample(data.raw_recording(work))
         if "import" in want:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import platform
 import resource
+import statistics
 import subprocess
 import sys
 import time
@@ -72,6 +73,25 @@ def machine() -> dict:
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
             "load_average": [round(x, 2) for x in load], "max_rss_self_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def median_of_runs(runs: list[list[Figure]]) -> list[Figure]:
+    """One group's figures from several runs, each against its own baseline (a run alternates the baseline with ours):
+    the median of ours and of the baseline, passed if it passed in most runs, and every run's ratio in the note.
+    On a shared machine one run's ratio moved 15-25 % within an hour (docs/performance.md); the median decides."""
+    if len(runs) == 1:
+        return runs[0]
+    out = []
+    for same in zip(*runs):
+        first = same[0]
+        passes = [f.passed for f in same if f.passed is not None]
+        ratios = ", ".join(f"{f.ratio:.2f}" for f in same)
+        out.append(Figure(first.name, float(statistics.median(f.ours for f in same)),
+                          float(statistics.median(f.baseline for f in same)), first.unit, first.target,
+                          None if not passes else sum(passes) > len(passes) / 2, first.baseline_name,
+                          note=f"median of {len(same)} runs (ratios {ratios}); {first.note}".rstrip("; "),
+                          extra={**first.extra, "runs": [{"ours": f.ours, "baseline": f.baseline} for f in same]}))
+    return out
 
 
 def table(figures: list[Figure]) -> str:
