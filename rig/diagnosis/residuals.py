@@ -89,7 +89,7 @@ class _Layout:
             rho_max = max(rho_max, float(np.sqrt(np.max(c.rho2))))
             u_max, v_max = max(u_max, float(np.nanmax(c.u_px))), max(v_max, float(np.nanmax(c.v_px)))
             cos = c.cos_inc  # the angle's extremes are those of its cosine (arccos decreases): no angle per pixel here
-            a_lo, a_hi = min(a_lo, _degrees(float(cos.max()))), max(a_hi, _degrees(float(cos.min())))
+            a_lo, a_hi = min(a_lo, float(_degrees(cos.max()))), max(a_hi, float(_degrees(cos.min())))
             rb = range_bin_index(c.z_m)
             windows.update(range(int(rb.min()), int(rb.max()) + 1))  # labels; empty windows have no bin
             ir = c.ir
@@ -144,12 +144,12 @@ class _Layout:
 
 
 def _angle(c: ModelData) -> np.ndarray:
-    return np.degrees(np.arccos(np.clip(c.cos_inc, -1, 1)))
+    return _degrees(c.cos_inc)
 
 
-def _degrees(cos: float) -> float:
-    """The angle of cosine `cos`, deg, as `_angle` makes it."""
-    return float(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+def _degrees(cos):
+    """The incidence angle, deg, of a cosine (or an array of them)."""
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
 class StopSums:
