@@ -80,20 +80,19 @@ class ShapeStatistics:
         for m in groups:
             vm, um = v[m], u[m]
             place = vm * shape[1] + um
-            if len(place) == shape[0] * shape[1] and place[0] == 0 and np.all(place[1:] - place[:-1] == 1):
-                # the whole image, row by row (a stop as loaded): the rows are the image, no scattering
-                m2_sum = uniform_filter(self.m2_m2[m].reshape(shape), KURTOSIS_WINDOW_PX, mode="constant") * size
-                nu_sum = uniform_filter(nu[m].reshape(shape), KURTOSIS_WINDOW_PX, mode="constant") * size
-                m2_out[m] = m2_sum.ravel() - self.m2_m2[m]
-                nu_out[m] = np.round(nu_sum.ravel() - nu[m])
-                continue
-            m2_img, nu_img = np.zeros(shape), np.zeros(shape)
-            m2_img[vm, um] = self.m2_m2[m]
-            nu_img[vm, um] = nu[m]
+            # the whole image, row by row (a stop as loaded): the rows are the image, no scattering and gathering
+            whole = len(place) == shape[0] * shape[1] and place[0] == 0 and np.all(place[1:] - place[:-1] == 1)
+            if whole:
+                m2_img, nu_img = self.m2_m2[m].reshape(shape), nu[m].reshape(shape)
+            else:
+                m2_img, nu_img = np.zeros(shape), np.zeros(shape)
+                m2_img[vm, um] = self.m2_m2[m]
+                nu_img[vm, um] = nu[m]
             m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
             nu_sum = uniform_filter(nu_img, KURTOSIS_WINDOW_PX, mode="constant") * size
-            m2_out[m] = m2_sum[vm, um] - self.m2_m2[m]
-            nu_out[m] = np.round(nu_sum[vm, um] - nu[m])
+            rows = (lambda img: img.ravel()) if whole else (lambda img: img[vm, um])  # the images back to rows
+            m2_out[m] = rows(m2_sum) - self.m2_m2[m]
+            nu_out[m] = np.round(rows(nu_sum) - nu[m])
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(nu_out > 4, m2_out / nu_out, np.nan), np.where(nu_out > 4, nu_out, np.nan)
 
