@@ -74,22 +74,15 @@ def bin_columns(d: ModelData, pred: Prediction) -> np.ndarray:
     return table
 
 
-def add_families(sums: list["BinSums"], d: ModelData, pred: Prediction, families: list[tuple[np.ndarray, np.ndarray]]) -> None:
-    """Add the rows of `d` into every family's sums at once: for family i, bin labels and covariate `families[i]`
-    (negative labels left out); the per-pixel columns (`bin_columns`) made once per pixel, in one compiled pass."""
-    n_rows, n_fam = len(d), len(families)
+def add_families(sums: list["BinSums"], d: ModelData, pred: Prediction, families) -> None:
+    """Add the rows of `d` into every family's sums at once: family i's bin labels and covariate are row i of
+    `families.labels` and `families.covariate` (negative labels left out), its labels span `families.lo` +
+    [0, `families.size`) (`rig.diagnosis.residuals.FamilyRows`); the per-pixel columns (`bin_columns`) made once
+    per pixel, in one compiled pass."""
+    labels, cov, lo, size = families.labels, families.covariate, families.lo, families.size
+    n_fam, n_rows = labels.shape
     if n_rows == 0 or n_fam == 0:
         return
-    labels = np.empty((n_fam, n_rows), np.int64)
-    cov = np.empty((n_fam, n_rows))
-    lo = np.zeros(n_fam, np.int64)
-    size = np.zeros(n_fam, np.int64)
-    for i, (g, c) in enumerate(families):
-        labels[i] = g
-        cov[i] = np.nan_to_num(c)
-        ok = g[g >= 0]
-        if ok.size:
-            lo[i], size[i] = ok.min(), ok.max() - ok.min() + 1
     out = np.zeros((n_fam, int(size.max()) if n_fam else 0, len(COLUMNS) + 1))
     counts = np.zeros(out.shape[:2], np.int64)
     gain = np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float))

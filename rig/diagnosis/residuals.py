@@ -13,9 +13,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from numba import njit
 
 from ..models import ModelData, ModelFit, Prediction
-from ..models.data import range_bin_index
+from ..models.data import RANGE_BIN_M, range_bin_index
 from ..models.group_sums import group_sums
 from .bins import RADIUS_EDGES, BinComparison, BinSums, add_families, bin_columns, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
@@ -104,26 +105,26 @@ class _Layout:
         return cls(np.linspace(0, rho_max + 1e-9, 6), (u_max + 1, v_max + 1) if positions else None, ir_edges,
                    angle_edges, windows)
 
-    def families(self, c: ModelData) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """(bin label, covariate) per row of chunk `c`, for every family (label -1: not in the family)."""
-        rho = np.sqrt(c.rho2)
-        r_bin = range_bin_index(c.z_m)
-        out = {"range": (r_bin, c.z_m), "radius": (np.digitize(rho, self.rho_edges[1:-1]), rho),
-               "range_radius": (r_bin * 10 + np.digitize(rho, RADIUS_EDGES[1:-1]), c.z_m)}
-        if self.tiles is not None:
-            nx, ny = POSITION_TILES
-            tx = np.clip((c.u_px / self.tiles[0] * nx).astype(int), 0, nx - 1)
-            ty = np.clip((c.v_px / self.tiles[1] * ny).astype(int), 0, ny - 1)
-            g = ty * nx + tx
-            out["position"] = (g, g.astype(float))
-        if self.ir_edges is not None:
-            ir = c.ir
-            ok = np.isfinite(ir)
-            out["brightness"] = (np.where(ok, np.clip(np.digitize(np.nan_to_num(ir), self.ir_edges[1:-1]), 0, 5), -1), ir)
-        if self.angle_edges is not None:
-            angle = _angle(c)
-            out["incidence"] = (np.digitize(angle, self.angle_edges[1:-1]), angle)
-        return out
+    def families(self, c: ModelData) -> "FamilyRows":
+        """Every family's bin label (-1: not in the family) and covariate for each row of chunk `c`, in one compiled
+        pass (`_family_labels`)."""
+        names = ["range", "radius", "range_radius"]
+        names += [name for name, present in (("position", self.tiles is not None), ("brightness", self.ir_edges is not None),
+                                            ("incidence", self.angle_edges is not None)) if present]
+        rows = len(c)
+        labels, cov = np.empty((len(names), rows), np.int64), np.empty((len(names), rows))
+        lo, hi = np.zeros(len(names), np.int64), np.full(len(names), -1, np.int64)
+        none = np.zeros(0)
+        _family_labels(np.ascontiguousarray(c.z_m, dtype=float), np.ascontiguousarray(c.rho2, dtype=float),
+                       np.ascontiguousarray(c.u_px, dtype=np.float32), np.ascontiguousarray(c.v_px, dtype=np.float32),
+                       none if self.ir_edges is None else np.ascontiguousarray(c.ir, dtype=float),
+                       none if self.angle_edges is None else np.ascontiguousarray(c.cos_inc, dtype=float),
+                       np.ascontiguousarray(self.rho_edges[1:-1]), np.asarray(RADIUS_EDGES[1:-1], dtype=float),
+                       np.zeros(0, np.float32) if self.tiles is None else np.asarray(self.tiles, dtype=np.float32),
+                       none if self.ir_edges is None else np.ascontiguousarray(self.ir_edges[1:-1]),
+                       none if self.angle_edges is None else np.ascontiguousarray(self.angle_edges[1:-1]),
+                       labels, cov, lo, hi)
+        return FamilyRows(names, labels, cov, lo, np.maximum(hi - lo + 1, 0))
 
     def labels(self) -> dict[str, dict[int, str]]:
         e = self.rho_edges
@@ -143,13 +144,79 @@ class _Layout:
         return out
 
 
-def _angle(c: ModelData) -> np.ndarray:
-    return _degrees(c.cos_inc)
-
-
 def _degrees(cos):
     """The incidence angle, deg, of a cosine (or an array of them)."""
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+@dataclass
+class FamilyRows:
+    """Each family's bin label per row (-1: not in the family) and covariate, a row per family (`names`), with the
+    smallest label and the span of labels each uses."""
+
+    names: list[str]
+    labels: np.ndarray  # (families, rows) int64
+    covariate: np.ndarray  # (families, rows)
+    lo: np.ndarray
+    size: np.ndarray
+
+    def __getitem__(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        i = self.names.index(name)
+        return self.labels[i], self.covariate[i]
+
+
+@njit(cache=True, nogil=True)
+def _count_at_or_below(edges, x):  # pragma: no cover - compiled
+    """np.digitize(x, edges) for increasing `edges`: how many are <= x (NaN: all of them, as numpy sorts it last)."""
+    if x != x:
+        return edges.size
+    k = 0
+    while k < edges.size and edges[k] <= x:
+        k += 1
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _family_labels(z, rho2, u, v, ir, cos, rho_inner, radius_inner, tiles, ir_inner, angle_inner, labels, cov, lo,
+                   hi):  # pragma: no cover - compiled
+    """`_Layout.families` row by row: range (0.25 m windows, `range_bin_index`: numpy's round, half to even), radius,
+    range x coarse radius (RADIUS_EDGES), then those present: image tile (POSITION_TILES of `tiles` = largest u and
+    v + 1, in float32 as the pixel positions are), brightness (-1 without one) and incidence angle (deg, `_degrees`).
+    Fills `labels` and `cov` (one row per family) and each family's smallest and largest label `lo`, `hi`."""
+    nx, ny = POSITION_TILES
+    has_pos, has_ir, has_angle = tiles.size > 0, ir_inner.size > 0, angle_inner.size > 0
+    for i in range(z.size):
+        zi = z[i]
+        r_bin = np.int64(np.rint(zi / RANGE_BIN_M))
+        rho = np.sqrt(rho2[i])
+        labels[0, i], cov[0, i] = r_bin, zi
+        labels[1, i], cov[1, i] = _count_at_or_below(rho_inner, rho), rho
+        labels[2, i], cov[2, i] = r_bin * 10 + _count_at_or_below(radius_inner, rho), zi
+        f = 3
+        if has_pos:
+            tx = min(max(np.int64(u[i] / tiles[0] * np.float32(nx)), 0), nx - 1)
+            ty = min(max(np.int64(v[i] / tiles[1] * np.float32(ny)), 0), ny - 1)
+            labels[f, i] = ty * nx + tx
+            cov[f, i] = float(ty * nx + tx)
+            f += 1
+        if has_ir:
+            b = ir[i]
+            if np.isfinite(b):
+                labels[f, i], cov[f, i] = min(_count_at_or_below(ir_inner, b), 5), b
+            else:
+                labels[f, i], cov[f, i] = -1, 0.0
+            f += 1
+        if has_angle:
+            angle = np.degrees(np.arccos(min(max(cos[i], -1.0), 1.0)))
+            labels[f, i], cov[f, i] = _count_at_or_below(angle_inner, angle), angle
+            f += 1
+        for k in range(f):
+            g = labels[k, i]
+            if g >= 0:
+                if hi[k] < lo[k]:
+                    lo[k], hi[k] = g, g
+                else:
+                    lo[k], hi[k] = min(lo[k], g), max(hi[k], g)
 
 
 class StopSums:
@@ -187,7 +254,7 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
     stops = StopSums()
     for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.pass_pieces())):
         families = layout.families(c)
-        add_families([sums[name] for name in families], c, p, list(families.values()))
+        add_families([sums[name] for name in families.names], c, p, families)
         stops.add(c, p)
     labels = layout.labels()
     done = {name: sums[name].finish(labels.get(name)) for name in sums if sums[name].sums}

@@ -1,0 +1,81 @@
+"""The residuals' bins: each pixel's label in every family, made in one compiled pass (`_Layout.families`), is the
+one numpy's own digitize, round-half-to-even and float32 arithmetic give, edges, ties and missing brightness
+included."""
+
+import numpy as np
+
+from rig.diagnosis.bins import RADIUS_EDGES
+from rig.diagnosis.residuals import POSITION_TILES, _Layout
+from rig.models import ModelData
+
+
+def _data(rng, rows=20_000):
+    u = rng.integers(0, 848, rows).astype(np.float32)
+    v = rng.integers(0, 480, rows).astype(np.float32)
+    z = rng.uniform(0.4, 3.2, rows)
+    z[:200] = 0.125 * rng.integers(3, 25, 200)  # halfway between two 0.25 m windows: numpy rounds half to even
+    rho2 = rng.uniform(0.0, 1.3, rows)
+    ir = rng.lognormal(3.0, 1.0, rows)
+    ir[rng.random(rows) < 0.05] = np.nan  # brightness left out (saturated nearby)
+    cos = rng.uniform(0.6, 1.0, rows)
+    cos[:50] = 1.0
+    d = ModelData(z_m=z, m2_m2=np.full(rows, 1e-6), m4_m4=np.full(rows, 3e-12), n=np.full(rows, 30.0),
+                  stop=np.zeros(rows, np.int32), u_px=u, v_px=v, rho2=rho2, ir=ir, cos_inc=cos)
+    return d
+
+
+def _expected(layout, d):
+    """The labels by numpy alone, as the bins are defined (`rig.diagnosis.residuals`)."""
+    rho = np.sqrt(d.rho2)
+    r_bin = np.round(d.z_m / 0.25).astype(np.int64)
+    nx, ny = POSITION_TILES
+    tx = np.clip((d.u_px / np.float32(layout.tiles[0]) * np.float32(nx)).astype(np.int64), 0, nx - 1)
+    ty = np.clip((d.v_px / np.float32(layout.tiles[1]) * np.float32(ny)).astype(np.int64), 0, ny - 1)
+    ok = np.isfinite(d.ir)
+    angle = np.degrees(np.arccos(np.clip(d.cos_inc, -1, 1)))
+    return {"range": (r_bin, d.z_m), "radius": (np.digitize(rho, layout.rho_edges[1:-1]), rho),
+            "range_radius": (r_bin * 10 + np.digitize(rho, RADIUS_EDGES[1:-1]), d.z_m),
+            "position": (ty * nx + tx, (ty * nx + tx).astype(float)),
+            "brightness": (np.where(ok, np.clip(np.digitize(np.nan_to_num(d.ir), layout.ir_edges[1:-1]), 0, 5), -1),
+                           np.where(ok, d.ir, 0.0)),
+            "incidence": (np.digitize(angle, layout.angle_edges[1:-1]), angle)}
+
+
+def test_every_familys_labels_and_covariate_are_numpys():
+    d = _data(np.random.default_rng(7))
+    layout = _Layout.of(d)
+    got = layout.families(d)
+    assert got.names == ["range", "radius", "range_radius", "position", "brightness", "incidence"]
+    for name, (labels, covariate) in _expected(layout, d).items():
+        g_labels, g_cov = got[name]
+        np.testing.assert_array_equal(g_labels, labels, err_msg=name)
+        np.testing.assert_array_equal(g_cov[labels >= 0], covariate[labels >= 0], err_msg=name)
+        used = labels[labels >= 0]
+        i = got.names.index(name)
+        assert got.lo[i] == used.min() and got.size[i] == used.max() - used.min() + 1, name
+
+
+def test_values_on_the_edges_fall_where_numpy_puts_them():
+    d = _data(np.random.default_rng(11))
+    layout = _Layout.of(d)
+    # move pixels onto the edges themselves: digitize puts a value equal to an edge in the bin above it
+    d.rho2[:4] = layout.rho_edges[1:-1] ** 2
+    d.ir[5:10] = layout.ir_edges[1:-1]
+    d.cos_inc[10:14] = np.cos(np.radians(layout.angle_edges[1:-1]))
+    got, expected = layout.families(d), _expected(layout, d)
+    for name in ("radius", "brightness", "incidence", "range_radius"):
+        np.testing.assert_array_equal(got[name][0], expected[name][0], err_msg=name)
+
+
+def test_a_family_without_its_covariate_is_left_out():
+    rng = np.random.default_rng(3)
+    d = _data(rng)
+    v_px = d.v_px.copy()
+    v_px[0] = np.nan  # a position unknown: no image tiles
+    plain = ModelData(z_m=d.z_m, m2_m2=d.m2_m2, m4_m4=d.m4_m4, n=d.n, stop=d.stop, u_px=d.u_px, v_px=v_px,
+                      rho2=d.rho2, ir=np.full(len(d), np.nan), cos_inc=np.full(len(d), 0.9))
+    layout = _Layout.of(plain)
+    assert layout.tiles is None and layout.ir_edges is None and layout.angle_edges is None
+    got = layout.families(plain)
+    assert got.names == ["range", "radius", "range_radius"]
+    np.testing.assert_array_equal(got["range"][0], np.round(d.z_m / 0.25).astype(np.int64))
