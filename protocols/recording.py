@@ -426,7 +426,8 @@ def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
     mean = st.mean_m if valid.all() else st.mean_m[valid]  # no copy of the image when every pixel has samples
     if mean.size and not np.all(np.isfinite(mean)):
         raise bad("mean_m", f"is not finite at {int(np.sum(~np.isfinite(mean)))} pixels that have samples")
-    if mean.size:
+    # the median is plausible when every value is (a stop's whole range in one pass each way, not a partition)
+    if mean.size and not PLAUSIBLE_RANGE_M[0] <= float(mean.min()) <= float(mean.max()) <= PLAUSIBLE_RANGE_M[1]:
         med = float(np.median(mean))
         if not PLAUSIBLE_RANGE_M[0] <= med <= PLAUSIBLE_RANGE_M[1]:
             raise bad("mean_m", f"has a median of {med:g}, not a range in metres",

@@ -82,3 +82,25 @@ def test_not_hdf5_and_missing_file(tmp_path):
         Recording(tmp_path / "x.h5")
     with pytest.raises(RecordingError, match="does not exist"):
         Recording(tmp_path / "nope.h5")
+
+
+@pytest.mark.parametrize("scale,where,error", [
+    (1000.0, slice(None), r"stop '1.500m' mean_m has a median of 1[45]\d\d\.?\d*, not a range in metres"),
+    (1e-3, slice(None), r"stop '1.500m' mean_m has a median of 0\.001[45]\d*, not a range in metres"),
+    (1000.0, (slice(0, 2), slice(0, 3)), None),  # six pixels out of the plausible range: the median is still a range
+    (1e-3, (slice(0, 2), slice(0, 3)), None),
+])
+def test_a_stop_whose_median_range_is_not_in_metres_is_refused(tmp_path, scale, where, error):
+    path = tmp_path / "mine.h5"
+    write_by_hand(path)
+    with h5py.File(path, "a") as f:
+        mean = f["stops"]["1.500m"]["mean_m"]
+        values = mean[()]
+        values[where] *= scale
+        mean[...] = values
+    with Recording(path) as rec:
+        if error is None:
+            assert rec.stop("1.500m").stats.mean_m[0, 0] > 100 or rec.stop("1.500m").stats.mean_m[0, 0] < 0.01
+        else:
+            with pytest.raises(RecordingError, match=error):
+                rec.stop("1.500m")
