@@ -134,8 +134,6 @@ def frame_mean_check(d: ModelData, stops: StopSums) -> Check | None:
     if t is None or not np.isfinite(t.series_var_inv2).any():
         return None
     labels, center, meas, predicted, se, dof = [], [], [], [], [], []
-    slices = d.stop_slices()
-    rows_of = {int(d.stop[sl.start]): sl for sl in slices} if slices is not None else None
     for s in sorted(stops.rows):
         measured, n_valid, frames = t.series_var_inv2[s], t.n_valid[s], t.frames[s]
         if not (np.isfinite(measured) and np.isfinite(n_valid) and n_valid > 1 and frames > 3 and measured > 0):
@@ -144,7 +142,7 @@ def frame_mean_check(d: ModelData, stops: StopSums) -> Check | None:
         # pixels that never changed (all samples on one depth level) are not in the data and add nothing
         expected = float(independent) / n_valid**2 + float(common / count)
         labels.append(_stop_label(d, s))
-        center.append(float(np.median(d.z_m[rows_of[s] if rows_of is not None else d.stop == s])))
+        center.append(d.median_range_by_stop[s])
         meas.append(measured)
         predicted.append(expected)
         se.append(measured * np.sqrt(2.0 / (frames - 1)))

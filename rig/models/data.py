@@ -307,6 +307,15 @@ class ModelData(ShapeStatistics):
         return np.maximum(1.0 / np.maximum(2.0 / self.nu + self.excess_measured / self.n, 1e-12), 0.5)
 
     @cached_property
+    def median_range_by_stop(self) -> dict[int, float]:
+        """Each stop's median measured range, m (stop index -> median of its pixels' `z_m`): where a per-stop
+        statistic sits along the range (the frame-mean check, the plots); made once for the data."""
+        slices = self.stop_slices()
+        rows = ([(int(self.stop[sl.start]), sl) for sl in slices] if slices is not None
+                else [(int(s), self.stop == s) for s in np.unique(self.stop)])
+        return {s: float(np.median(self.z_m[r])) for s, r in rows}
+
+    @cached_property
     def fill_by_stop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error): what the
         likelihood's fill term compares the models' fill with (`rig.models.likelihood`)."""

@@ -70,7 +70,7 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
         ax.set_xlabel("Z [m]")
         ax.set_ylabel("kurtosis (normal = 3)")
     elif isinstance(term, (EmpiricalFrameMean, EmpiricalFill)):
-        z = np.array(sorted({float(np.median(d.z_m[d.stop == s])) for s in np.unique(d.stop)}))
+        z = np.array(sorted(set(d.median_range_by_stop.values())))
         gain = term.gain(z) if isinstance(term, EmpiricalFrameMean) else term.gain(z, after.values)
         ax.plot(z, gain, "o-", color="tab:green", label=f"{term.name}")
         ax.axhline(1.0, color="k", lw=0.8)
