@@ -5,7 +5,8 @@ included."""
 import numpy as np
 
 from rig.diagnosis.bins import RADIUS_EDGES
-from rig.diagnosis.residuals import POSITION_TILES, _Layout
+from rig.diagnosis.family_sums import POSITION_TILES
+from rig.diagnosis.residuals import _Layout
 from rig.models import ModelData
 
 

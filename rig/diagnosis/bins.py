@@ -74,87 +74,18 @@ def bin_columns(d: ModelData, pred: Prediction) -> np.ndarray:
     return table
 
 
-def add_families(sums: list["BinSums"], d: ModelData, pred: Prediction, families) -> None:
-    """Add the rows of `d` into every family's sums at once: family i's bin labels and covariate are row i of
-    `families.labels` and `families.covariate` (negative labels left out), its labels span `families.lo` +
-    [0, `families.size`) (`rig.diagnosis.residuals.FamilyRows`); the per-pixel columns (`bin_columns`) made once
-    per pixel, in one compiled pass."""
-    labels, cov, lo, size = families.labels, families.covariate, families.lo, families.size
-    n_fam, n_rows = labels.shape
-    if n_rows == 0 or n_fam == 0:
-        return
-    out = np.zeros((n_fam, int(size.max()) if n_fam else 0, len(COLUMNS) + 1))
-    counts = np.zeros(out.shape[:2], np.int64)
-    gain = np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float))
-    k4 = pred.k4_m4
-    _families(np.ascontiguousarray(d.nu, dtype=float), np.ascontiguousarray(d.m2_m2, dtype=float),
-              np.ascontiguousarray(pred.var_m2, dtype=float),
-              np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (n_rows,)), dtype=float), k4 is not None,
-              np.ascontiguousarray(d.kurtosis_usable), np.ascontiguousarray(np.nan_to_num(d.pixel_kurtosis), dtype=float),
-              np.ascontiguousarray(d.n, dtype=float), gain, labels, cov, lo, size, out, counts)
-    for f in range(n_fam):
-        for g in np.flatnonzero(counts[f]).tolist():
-            key = int(lo[f]) + g
-            row = out[f, g]
-            sums[f].sums[key] = sums[f].sums[key] + row if key in sums[f].sums else row.copy()
-
-
-@njit(cache=True, nogil=True)
-def _families(nu, m2, var, k4, has_k4, usable, beta, n, gain, labels, cov, lo, size, out, counts):  # pragma: no cover
-    """Per pixel: the COLUMNS of `bin_columns`, then for each family, into its bin (runs of one label summed
-    locally first), with nu times the family's covariate last."""
-    n_fam, n_rows = labels.shape
-    k = out.shape[2]
-    vals = np.empty(k - 1)
-    acc = np.zeros((n_fam, k))
-    run = np.full(n_fam, -1, np.int64)
-    count = np.zeros(n_fam, np.int64)
-    for i in range(n_rows):
-        v, nu_i, n_i = var[i], nu[i], n[i]
-        g_shared = gain[i] if gain.size > 1 else gain[0]
-        shared = max(1.0 + (g_shared - 1.0) / 2.0, 1.0)
-        weight = nu_i * v
-        w2s = weight * weight * shared
-        use = usable[i]
-        w = n_i if use else 0.0
-        b = beta[i] if use else 0.0
-        wb = w * b
-        vals[0] = 1.0
-        vals[1] = nu_i
-        vals[2] = m2[i]
-        vals[3] = weight
-        vals[4] = w * (k4[i] / (v * v) if has_k4 else 0.0)
-        vals[5] = w
-        vals[6] = w2s * 2.0 / nu_i
-        vals[7] = w2s / n_i
-        vals[8] = shared
-        vals[9] = 1.0 if use else 0.0
-        vals[10] = w
-        vals[11] = wb
-        vals[12] = w * w
-        vals[13] = wb * w
-        vals[14] = wb * wb
-        for f in range(n_fam):
-            g = labels[f, i] - lo[f]
-            if labels[f, i] < 0 or g >= size[f]:
-                continue
-            if g != run[f]:
-                if run[f] >= 0:
-                    counts[f, run[f]] += count[f]
-                    for j in range(k):
-                        out[f, run[f], j] += acc[f, j]
-                        acc[f, j] = 0.0
-                run[f] = g
-                count[f] = 0
-            count[f] += 1
-            for j in range(k - 1):
-                acc[f, j] += vals[j]
-            acc[f, k - 1] += nu_i * cov[f, i]
-    for f in range(n_fam):
-        if run[f] >= 0:
-            counts[f, run[f]] += count[f]
-            for j in range(k):
-                out[f, run[f], j] += acc[f, j]
+@njit(cache=True, nogil=True, inline="always")
+def pixel_columns(nu_i, m2_i, v, k4_i, has_k4, use, beta_i, n_i, g_shared):  # pragma: no cover - compiled
+    """One pixel's COLUMNS, as `bin_columns` makes them for many (its docstring says what each is), as a tuple:
+    the compiled passes over the residuals sum them (`rig.diagnosis.family_sums`)."""
+    shared = max(1.0 + (g_shared - 1.0) / 2.0, 1.0)
+    weight = nu_i * v
+    w2s = weight * weight * shared
+    w = n_i if use else 0.0
+    b = beta_i if use else 0.0
+    wb = w * b
+    return (1.0, nu_i, m2_i, weight, w * (k4_i / (v * v) if has_k4 else 0.0), w, w2s * 2.0 / nu_i, w2s / n_i, shared,
+            1.0 if use else 0.0, w, wb, w * w, wb * w, wb * wb)
 
 
 class BinSums:

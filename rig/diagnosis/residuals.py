@@ -13,16 +13,14 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from numba import njit
 
 from ..models import ModelData, ModelFit, Prediction
-from ..models.data import RANGE_BIN_M, range_bin_index
+from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
-from .bins import RADIUS_EDGES, BinComparison, BinSums, add_families, bin_columns, range_labels
+from .bins import RADIUS_EDGES, BinComparison, BinSums, bin_columns, range_labels
+from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 
-#: image tiles for the position family (columns, rows)
-POSITION_TILES = (8, 6)
 
 
 @dataclass
@@ -105,26 +103,71 @@ class _Layout:
         return cls(np.linspace(0, rho_max + 1e-9, 6), (u_max + 1, v_max + 1) if positions else None, ir_edges,
                    angle_edges, windows)
 
-    def families(self, c: ModelData) -> "FamilyRows":
-        """Every family's bin label (-1: not in the family) and covariate for each row of chunk `c`, in one compiled
-        pass (`_family_labels`)."""
-        names = ["range", "radius", "range_radius"]
-        names += [name for name, present in (("position", self.tiles is not None), ("brightness", self.ir_edges is not None),
-                                            ("incidence", self.angle_edges is not None)) if present]
-        rows = len(c)
-        labels, cov = np.empty((len(names), rows), np.int64), np.empty((len(names), rows))
-        lo, hi = np.zeros(len(names), np.int64), np.full(len(names), -1, np.int64)
+    def names(self) -> list[str]:
+        """The families the data have (of FAMILIES: positions, IR and a span of incidence angles are needed)."""
+        present = {"position": self.tiles is not None, "brightness": self.ir_edges is not None,
+                   "incidence": self.angle_edges is not None}
+        return [name for name in FAMILIES if present.get(name, True)]
+
+    def spans(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each family's smallest label and number of labels (FAMILIES order; 0 for one the data lack): every label
+        a row can have."""
+        windows = sorted(self.range_windows) or [0]
+        spans = {"range": (windows[0], windows[-1] - windows[0] + 1), "radius": (0, len(self.rho_edges) - 1),
+                 "range_radius": (windows[0] * 10, (windows[-1] - windows[0]) * 10 + len(RADIUS_EDGES) - 1),
+                 "position": (0, POSITION_TILES[0] * POSITION_TILES[1]), "brightness": (0, 6),
+                 "incidence": (0, 0 if self.angle_edges is None else len(self.angle_edges) - 1)}
+        names = self.names()
+        lo, size = zip(*(spans[name] if name in names else (0, 0) for name in FAMILIES))
+        return np.array(lo, np.int64), np.array(size, np.int64)
+
+    def _row_inputs(self, c: ModelData) -> tuple:
+        """What `row_labels` reads of chunk `c` and of the bins."""
         none = np.zeros(0)
-        _family_labels(np.ascontiguousarray(c.z_m, dtype=float), np.ascontiguousarray(c.rho2, dtype=float),
-                       np.ascontiguousarray(c.u_px, dtype=np.float32), np.ascontiguousarray(c.v_px, dtype=np.float32),
-                       none if self.ir_edges is None else np.ascontiguousarray(c.ir, dtype=float),
-                       none if self.angle_edges is None else np.ascontiguousarray(c.cos_inc, dtype=float),
-                       np.ascontiguousarray(self.rho_edges[1:-1]), np.asarray(RADIUS_EDGES[1:-1], dtype=float),
-                       np.zeros(0, np.float32) if self.tiles is None else np.asarray(self.tiles, dtype=np.float32),
-                       none if self.ir_edges is None else np.ascontiguousarray(self.ir_edges[1:-1]),
-                       none if self.angle_edges is None else np.ascontiguousarray(self.angle_edges[1:-1]),
-                       labels, cov, lo, hi)
-        return FamilyRows(names, labels, cov, lo, np.maximum(hi - lo + 1, 0))
+        # a family the data lack gets a column of placeholders, not an empty one: a test for it in every row of
+        # the compiled pass cost a third of the pass
+        return (np.ascontiguousarray(c.z_m, dtype=float), np.ascontiguousarray(c.rho2, dtype=float),
+                np.ascontiguousarray(c.u_px, dtype=np.float32), np.ascontiguousarray(c.v_px, dtype=np.float32),
+                np.full(len(c), np.nan) if self.ir_edges is None else np.ascontiguousarray(c.ir, dtype=float),
+                np.ones(len(c)) if self.angle_edges is None else np.ascontiguousarray(c.cos_inc, dtype=float),
+                np.ascontiguousarray(self.rho_edges[1:-1]), np.asarray(RADIUS_EDGES[1:-1], dtype=float),
+                np.zeros(0, np.float32) if self.tiles is None else np.asarray(self.tiles, dtype=np.float32),
+                none if self.ir_edges is None else np.ascontiguousarray(self.ir_edges[1:-1]),
+                none if self.angle_edges is None else np.ascontiguousarray(self.angle_edges[1:-1]))
+
+    def families(self, c: ModelData) -> FamilyRows:
+        """Every family's bin label (-1: not in the family) and covariate for each row of chunk `c`, in one compiled
+        pass (`rig.diagnosis.family_sums.family_labels`)."""
+        labels, cov = np.empty((len(FAMILIES), len(c)), np.int64), np.empty((len(FAMILIES), len(c)))
+        lo, hi = np.zeros(len(FAMILIES), np.int64), np.full(len(FAMILIES), -1, np.int64)
+        family_labels(*self._row_inputs(c), labels, cov, lo, hi)
+        names = self.names()
+        at = [FAMILIES.index(name) for name in names]
+        return FamilyRows(names, labels[at], cov[at], lo[at], np.maximum(hi - lo + 1, 0)[at])
+
+    def add(self, out: np.ndarray, counts: np.ndarray, c: ModelData, pred: Prediction) -> None:
+        """Chunk `c` and its prediction into every family's sums (`new_sums`), in one compiled pass
+        (`rig.diagnosis.family_sums.residual_sums`)."""
+        if len(c) == 0:
+            return
+        k4 = pred.k4_m4
+        residual_sums(*self._row_inputs(c), np.ascontiguousarray(c.nu, dtype=float), np.ascontiguousarray(c.m2_m2, dtype=float),
+                      np.ascontiguousarray(pred.var_m2, dtype=float),
+                      np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (len(c),)), dtype=float),
+                      k4 is not None, np.ascontiguousarray(c.kurtosis_usable),
+                      np.ascontiguousarray(np.nan_to_num(c.pixel_kurtosis), dtype=float), np.ascontiguousarray(c.n, dtype=float),
+                      np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)), *self.spans(), out, counts)
+
+    def bin_sums(self, out: np.ndarray, counts: np.ndarray) -> dict[str, BinSums]:
+        """The sums `add` made, as each family's BinSums (bins no row fell in left out)."""
+        lo, _ = self.spans()
+        sums = {}
+        for name in self.names():
+            f = FAMILIES.index(name)
+            sums[name] = BinSums()
+            for g in np.flatnonzero(counts[f]).tolist():
+                sums[name].sums[int(lo[f]) + g] = out[f, g].copy()
+        return sums
 
     def labels(self) -> dict[str, dict[int, str]]:
         e = self.rho_edges
@@ -147,76 +190,6 @@ class _Layout:
 def _degrees(cos):
     """The incidence angle, deg, of a cosine (or an array of them)."""
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
-
-
-@dataclass
-class FamilyRows:
-    """Each family's bin label per row (-1: not in the family) and covariate, a row per family (`names`), with the
-    smallest label and the span of labels each uses."""
-
-    names: list[str]
-    labels: np.ndarray  # (families, rows) int64
-    covariate: np.ndarray  # (families, rows)
-    lo: np.ndarray
-    size: np.ndarray
-
-    def __getitem__(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        i = self.names.index(name)
-        return self.labels[i], self.covariate[i]
-
-
-@njit(cache=True, nogil=True)
-def _count_at_or_below(edges, x):  # pragma: no cover - compiled
-    """np.digitize(x, edges) for increasing `edges`: how many are <= x (NaN: all of them, as numpy sorts it last)."""
-    if x != x:
-        return edges.size
-    k = 0
-    while k < edges.size and edges[k] <= x:
-        k += 1
-    return k
-
-
-@njit(cache=True, nogil=True)
-def _family_labels(z, rho2, u, v, ir, cos, rho_inner, radius_inner, tiles, ir_inner, angle_inner, labels, cov, lo,
-                   hi):  # pragma: no cover - compiled
-    """`_Layout.families` row by row: range (0.25 m windows, `range_bin_index`: numpy's round, half to even), radius,
-    range x coarse radius (RADIUS_EDGES), then those present: image tile (POSITION_TILES of `tiles` = largest u and
-    v + 1, in float32 as the pixel positions are), brightness (-1 without one) and incidence angle (deg, `_degrees`).
-    Fills `labels` and `cov` (one row per family) and each family's smallest and largest label `lo`, `hi`."""
-    nx, ny = POSITION_TILES
-    has_pos, has_ir, has_angle = tiles.size > 0, ir_inner.size > 0, angle_inner.size > 0
-    for i in range(z.size):
-        zi = z[i]
-        r_bin = np.int64(np.rint(zi / RANGE_BIN_M))
-        rho = np.sqrt(rho2[i])
-        labels[0, i], cov[0, i] = r_bin, zi
-        labels[1, i], cov[1, i] = _count_at_or_below(rho_inner, rho), rho
-        labels[2, i], cov[2, i] = r_bin * 10 + _count_at_or_below(radius_inner, rho), zi
-        f = 3
-        if has_pos:
-            tx = min(max(np.int64(u[i] / tiles[0] * np.float32(nx)), 0), nx - 1)
-            ty = min(max(np.int64(v[i] / tiles[1] * np.float32(ny)), 0), ny - 1)
-            labels[f, i] = ty * nx + tx
-            cov[f, i] = float(ty * nx + tx)
-            f += 1
-        if has_ir:
-            b = ir[i]
-            if np.isfinite(b):
-                labels[f, i], cov[f, i] = min(_count_at_or_below(ir_inner, b), 5), b
-            else:
-                labels[f, i], cov[f, i] = -1, 0.0
-            f += 1
-        if has_angle:
-            angle = np.degrees(np.arccos(min(max(cos[i], -1.0), 1.0)))
-            labels[f, i], cov[f, i] = _count_at_or_below(angle_inner, angle), angle
-            f += 1
-        for k in range(f):
-            g = labels[k, i]
-            if g >= 0:
-                if hi[k] < lo[k]:
-                    lo[k], hi[k] = g, g
-                else:
-                    lo[k], hi[k] = min(lo[k], g), max(hi[k], g)
 
 
 class StopSums:
@@ -250,12 +223,12 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
     """Every comparison of `fit` with the data, and the verdict on them. With `pred` (the prediction for every
     row of `d`), in one piece; otherwise stop by stop."""
     layout = _Layout.of(d)
-    sums = {name: BinSums() for name in ("range", "radius", "range_radius", "position", "brightness", "incidence")}
+    out, counts = new_sums(layout.spans()[1])
     stops = StopSums()
     for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.pass_pieces())):
-        families = layout.families(c)
-        add_families([sums[name] for name in families.names], c, p, families)
+        layout.add(out, counts, c, p)
         stops.add(c, p)
+    sums = layout.bin_sums(out, counts)
     labels = layout.labels()
     done = {name: sums[name].finish(labels.get(name)) for name in sums if sums[name].sums}
     checks: list[Check] = [sigma_check(done["range"], "range"), sigma_check(done["radius"], "radius")]
