@@ -80,3 +80,43 @@ def test_a_family_without_its_covariate_is_left_out():
     got = layout.families(plain)
     assert got.names == ["range", "radius", "range_radius"]
     np.testing.assert_array_equal(got["range"][0], np.round(d.z_m / 0.25).astype(np.int64))
+
+
+def test_a_bins_sums_are_the_pooled_quantities_by_their_definitions():
+    """compare_bins's sums per group, against numpy's own sums of each quantity as `pixel_columns` defines it:
+    pixels, degrees of freedom, M2, nu x predicted variance, and the kurtosis pooling sums of the usable pixels."""
+    from rig.diagnosis.bins import BinSums
+    from rig.models.prediction import Prediction
+
+    rng = np.random.default_rng(5)
+    d = _data(rng)
+    n = len(d)
+    d.n[:] = rng.integers(20, 40, n)
+    var = rng.uniform(0.5e-6, 2e-6, n)
+    d.m2_m2[:] = var * (d.n - 1) * rng.gamma(50, 1 / 50, n)
+    d.m4_m4[:] = 3 * var**2 * d.n * rng.gamma(20, 1 / 20, n)
+    pred = Prediction(var, np.ones(n), np.zeros(n), var_m2=var, k4_m4=0.1 * var**2, frame_mean_gain=1.4)
+    groups = rng.integers(-1, 7, n)
+    groups.sort()  # runs of one bin, as pixels come
+    covariate = d.ir  # NaN in some rows: 0 in the covariate's sum
+    sums = BinSums()
+    sums.add(d, pred, groups, covariate)
+
+    nu, usable = d.n - 1, d.kurtosis_usable
+    assert usable.any()
+    w = np.where(usable, d.n, 0.0)
+    b = np.where(usable, d.pixel_kurtosis, 0.0)
+    shared = 1 + (1.4 - 1) / 2
+    weight = nu * var
+    expected = {"pixels": np.ones(n), "nu": nu, "m2": d.m2_m2, "weight": weight, "n_excess": w * 0.1,
+                "w2_nu": weight**2 * shared * 2 / nu, "w2_n": weight**2 * shared / d.n, "k_count": usable * 1.0,
+                "k_wb": w * b, "k_w2b2": (w * b) ** 2}
+    from rig.diagnosis.bins import COLUMNS
+
+    for g in range(7):
+        rows = groups == g
+        got = sums.sums[g]
+        for name, col in expected.items():
+            np.testing.assert_allclose(got[COLUMNS.index(name)], col[rows].sum(), rtol=1e-12, err_msg=name)
+        np.testing.assert_allclose(got[-1], (nu * np.nan_to_num(covariate))[rows].sum(), rtol=1e-12)
+    assert -1 not in sums.sums

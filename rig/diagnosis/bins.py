@@ -45,39 +45,19 @@ class BinComparison:
         return np.abs(self.log_ratio) > 3 * self.se_log
 
 
-#: the per-pixel columns a bin sums (`bin_columns`), then the family's own: nu times its covariate
+#: the per-pixel columns a bin sums (`pixel_columns`), then the family's own: nu times its covariate
 COLUMNS = ("pixels", "nu", "m2", "weight", "n_excess", "n_usable", "w2_nu", "w2_n", "shared",
            "k_count", "k_w", "k_wb", "k_w2", "k_w2b", "k_w2b2")
 
 
-def bin_columns(d: ModelData, pred: Prediction) -> np.ndarray:
-    """The per-pixel quantities every bin pools (COLUMNS): pixels, nu, M2; with weight = nu var_pred, the weight,
-    sum n excess_pred and n over the pixels whose kurtosis is usable; weight^2 (2 / nu) shared and weight^2 / n
-    shared for the sampling error; the sharing factor; and the pooling sums of the usable pixels' kurtosis
-    estimates b with weights w = n (count, w, w b, w^2, w^2 b, w^2 b^2)."""
-    nu, n = d.nu, d.n
-    var_p = pred.var_m2
-    usable = d.kurtosis_usable
-    excess_p = (pred.k4_m4 / var_p**2) if pred.k4_m4 is not None else 0.0
-    # noise shared by neighbouring pixels (a frame-mean gain A > 1, rig.models.empirical) makes their variances
-    # co-vary: for a Gaussian-shaped correlation, sum over neighbours of rho^2 is about (A - 1) / 2
-    shared = np.maximum(1.0 + (np.broadcast_to(np.asarray(pred.frame_mean_gain, dtype=float), var_p.shape) - 1.0) / 2.0, 1.0)
-    weight = nu * var_p
-    w2s = weight * weight * shared
-    w = np.where(usable, n, 0.0)
-    b = np.where(usable, d.pixel_kurtosis, 0.0)
-    wb = w * b
-    table = np.empty((len(d), len(COLUMNS)))  # a pixel's columns together (`group_sums`)
-    for i, col in enumerate((1.0, nu, d.m2_m2, weight, w * excess_p, w, w2s * 2.0 / nu, w2s / n, shared, usable, w, wb,
-                             w * w, wb * w, wb * wb)):
-        table[:, i] = col
-    return table
-
-
 @njit(cache=True, nogil=True, inline="always")
 def pixel_columns(nu_i, m2_i, v, k4_i, has_k4, use, beta_i, n_i, g_shared):  # pragma: no cover - compiled
-    """One pixel's COLUMNS, as `bin_columns` makes them for many (its docstring says what each is), as a tuple:
-    the compiled passes over the residuals sum them (`rig.diagnosis.family_sums`)."""
+    """The quantities every bin pools, for one pixel, as a tuple (COLUMNS): pixels, nu, M2; with weight = nu
+    var_pred (`v`), the weight, n excess_pred and n where the pixel's kurtosis is usable (`use`); weight^2 (2 / nu)
+    shared and weight^2 / n shared for the sampling error; the sharing factor; and the pooling sums of the usable
+    pixels' kurtosis estimate b (`beta_i`) with weight w = n (count, w, w b, w^2, w^2 b, w^2 b^2). Noise shared by
+    neighbouring pixels (a frame-mean gain A = `g_shared` > 1, rig.models.empirical) makes their variances
+    co-vary: for a Gaussian-shaped correlation, the sum over neighbours of rho^2 is about (A - 1) / 2."""
     shared = max(1.0 + (g_shared - 1.0) / 2.0, 1.0)
     weight = nu_i * v
     w2s = weight * weight * shared
@@ -88,6 +68,41 @@ def pixel_columns(nu_i, m2_i, v, k4_i, has_k4, use, beta_i, n_i, g_shared):  # p
             1.0 if use else 0.0, w, wb, w * w, wb * w, wb * wb)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def add_run(row, a, ax):  # pragma: no cover - compiled
+    """A run's summed `pixel_columns` `a` and nu x covariate `ax` into a bin's `row`."""
+    for j in range(15):
+        row[j] += a[j]
+    row[15] += ax
+
+
+@njit(cache=True, nogil=True)
+def _group_sums(groups, cov, nu, m2, var, k4, has_k4, usable, beta, n, gain, lo, out, counts):  # pragma: no cover
+    """Each row's `pixel_columns`, then nu times its covariate, into `out[groups[i] - lo]` (negative groups left
+    out); a run of rows in one bin is summed first, in registers."""
+    size = counts.size
+    zero15 = (0.0,) * 15
+    a, ax, run, count = zero15, 0.0, -1, 0
+    for i in range(groups.size):
+        g = groups[i] - lo
+        if groups[i] < 0 or g >= size:
+            continue
+        if g != run:
+            if count > 0:
+                add_run(out[run], a, ax)
+                counts[run] += count
+            a, ax, run, count = zero15, 0.0, g, 0
+        x = pixel_columns(nu[i], m2[i], var[i], k4[i] if has_k4 else 0.0, has_k4, usable[i], beta[i], n[i],
+                          gain[i] if gain.size > 1 else gain[0])
+        a = (a[0] + x[0], a[1] + x[1], a[2] + x[2], a[3] + x[3], a[4] + x[4], a[5] + x[5], a[6] + x[6], a[7] + x[7],
+             a[8] + x[8], a[9] + x[9], a[10] + x[10], a[11] + x[11], a[12] + x[12], a[13] + x[13], a[14] + x[14])
+        ax += nu[i] * cov[i]
+        count += 1
+    if count > 0:
+        add_run(out[run], a, ax)
+        counts[run] += count
+
+
 class BinSums:
     """The sums `compare_bins` pools in each bin (COLUMNS, and nu times the covariate), added chunk by chunk;
     rows with a negative label are left out."""
@@ -95,11 +110,27 @@ class BinSums:
     def __init__(self) -> None:
         self.sums: dict[int, np.ndarray] = {}
 
-    def add(self, columns: np.ndarray, groups: np.ndarray, covariate: np.ndarray) -> None:
-        """Add rows: their `bin_columns`, bin labels and covariate."""
-        keys, sums = group_sums(groups, columns, more=columns[:, 1] * np.nan_to_num(covariate), skip_below=0)
-        for key, row in zip(keys.tolist(), sums):
-            self.sums[key] = self.sums[key] + row if key in self.sums else row
+    def add(self, d: ModelData, pred: Prediction, groups: np.ndarray, covariate: np.ndarray) -> None:
+        """Add the rows of `d` with their prediction: their bin labels (negative: left out) and covariate, in one
+        compiled pass (`_group_sums`)."""
+        groups = np.ascontiguousarray(groups, dtype=np.int64)
+        valid = groups[groups >= 0]
+        if valid.size == 0:
+            return
+        lo = int(valid.min())
+        out = np.zeros((int(valid.max()) - lo + 1, len(COLUMNS) + 1))
+        counts = np.zeros(len(out), np.int64)
+        k4 = pred.k4_m4
+        _group_sums(groups, np.ascontiguousarray(np.nan_to_num(np.broadcast_to(covariate, groups.shape)), dtype=float),
+                    np.ascontiguousarray(d.nu, dtype=float), np.ascontiguousarray(d.m2_m2, dtype=float),
+                    np.ascontiguousarray(pred.var_m2, dtype=float),
+                    np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, groups.shape), dtype=float),
+                    k4 is not None, np.ascontiguousarray(d.kurtosis_usable),
+                    np.ascontiguousarray(np.nan_to_num(d.pixel_kurtosis), dtype=float), np.ascontiguousarray(d.n, dtype=float),
+                    np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)), lo, out, counts)
+        for g in np.flatnonzero(counts).tolist():
+            key = lo + g
+            self.sums[key] = self.sums[key] + out[g] if key in self.sums else out[g].copy()
 
     def finish(self, labels_of: dict[int, str] | None = None) -> BinComparison:
         out: dict[str, list] = {k: [] for k in ("labels", "center", "sm", "sp", "lr", "se", "km", "kp", "sk", "px")}
@@ -134,7 +165,7 @@ def compare_bins(d: ModelData, pred: Prediction, groups: np.ndarray, covariate: 
                  labels_of: dict[int, str] | None = None) -> BinComparison:
     """Pool measured and predicted variance (and kurtosis) within each group (integer labels; negative: left out)."""
     sums = BinSums()
-    sums.add(bin_columns(d, pred), np.asarray(groups).astype(np.int64), np.asarray(covariate, dtype=float))
+    sums.add(d, pred, np.asarray(groups).astype(np.int64), np.asarray(covariate, dtype=float))
     return sums.finish(labels_of)
 
 

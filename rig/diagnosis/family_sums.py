@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..models.data import RANGE_BIN_M
-from .bins import COLUMNS, pixel_columns
+from .bins import COLUMNS, add_run, pixel_columns
 
 #: the families, in the places the compiled passes give them
 FAMILIES = ("range", "radius", "range_radius", "position", "brightness", "incidence")
@@ -143,10 +143,7 @@ def _flush(run, lo, size, a, cv, count, out, counts):  # pragma: no cover - comp
         if run[f] < 0 or g < 0 or g >= size[f]:
             continue
         counts[f, g] += count
-        o = out[f, g]
-        for j in range(15):
-            o[j] += a[j]
-        o[15] += cv[f]
+        add_run(out[f, g], a, cv[f])
 
 
 def new_sums(size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ import numpy as np
 from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
-from .bins import RADIUS_EDGES, BinComparison, BinSums, bin_columns, range_labels
+from .bins import RADIUS_EDGES, BinComparison, BinSums, range_labels
 from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 
@@ -261,7 +261,7 @@ def compare_along(fit: ModelFit, d: ModelData, groups_of: Callable[[ModelData], 
     totals: list[dict[int, float]] = [{} for _ in range(1 + len(others))]
     for c in d.pass_pieces():
         groups, p = groups_of(c), fit.predict(c)
-        sums.add(bin_columns(c, p), groups, covariate_of(c))
+        sums.add(c, p, groups, covariate_of(c))
         for k, f in enumerate((fit, *others)):
             var = p.var_m2 if k == 0 else f.predict(c).var_m2
             keys, s = group_sums(groups, [var], skip_below=0)
