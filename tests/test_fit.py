@@ -81,3 +81,33 @@ def test_pooled_sigma_per_stop():
     b = pooled_sigma(s, s.stop)
     expected = 0.002 * b.z_m**3
     assert np.all(np.abs(b.sigma_m - expected) < 4 * b.se_sigma_m)
+
+
+def test_on_many_pixels_newton_starts_from_a_subsample_and_ends_at_the_paper_s_maximum():
+    """Above 4 x 64 x 1024 pixels lambda is first solved on every 64th (rig.models.closed_form.STRIDE); the maximum is
+    still the paper's, as scipy's bounded scalar minimiser of the profile likelihood finds it (no Newton, no
+    shared code), and the one Newton from the fixed start finds."""
+    from scipy.optimize import minimize_scalar
+
+    from rig.models import closed_form
+
+    rng = np.random.default_rng(3)
+    rows = 300_000
+    z = rng.uniform(0.5, 3.0, rows)
+    n = rng.integers(1, 60, rows).astype(float)  # some pixels with one sample: no degrees of freedom
+    m2 = np.where(n > 1, (0.002 * z**2.6) ** 2 * rng.chisquare(np.maximum(n - 1, 1)), 0.0)
+    est = closed_form.power_law_mle(z, m2, n)
+    w = np.maximum(n - 1, 0.0)
+    lz = np.where(n > 1, np.log(z), 0.0)
+    W = w.sum()
+
+    def profile(lam):  # -loglik with k profiled out (paper, eq. k_mle), up to a constant
+        return 0.5 * W * np.log(np.sum(m2 * np.exp(-2 * lam * lz)) / W) + lam * np.sum(w * lz)
+
+    scipy_lam = minimize_scalar(profile, bounds=(-2, 8), method="bounded", options={"xatol": 1e-12}).x
+    # Brent's method on a function this flat at its minimum finds it to about sqrt(machine epsilon): a thousandth of
+    # the standard error is far above that and far below anything a fit reports
+    assert abs(est.lam - scipy_lam) < 1e-3 * np.sqrt(est.covariance[1, 1])
+    lz_ref = np.where(n > 1, np.log(z) - np.sum(w * np.log(z)) / W, 0.0)
+    fixed_start = closed_form._solve_lambda(lz_ref, m2, W, 0.0)
+    assert abs(est.lam - fixed_start) < 1e-12
