@@ -103,6 +103,9 @@ def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray, slices: list[slice] | N
         z = z if ok.all() else z[ok]
         if len(z) == 0:
             continue
+        if z.max() / z.min() < FLAT_SPREAD:  # then the 10-90 % spread is too: one partition (the median), not three
+            levels.append(float(np.percentile(z, 50)))
+            continue
         lo, mid, hi = np.percentile(z, [10, 50, 90])
         if hi / lo < FLAT_SPREAD:
             levels.append(float(mid))
