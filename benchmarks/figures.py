@@ -28,9 +28,12 @@ class Figure:
     baseline_name: str = ""
     note: str = ""
     extra: dict = field(default_factory=dict)
+    paired_ratio: float | None = None  # several runs': the median of each run's own ratio (`median_of_runs`)
 
     @property
     def ratio(self) -> float:
+        if self.paired_ratio is not None:
+            return self.paired_ratio
         return self.ours / self.baseline if self.baseline else float("nan")
 
 
@@ -77,8 +80,10 @@ def machine() -> dict:
 
 def median_of_runs(runs: list[list[Figure]]) -> list[Figure]:
     """One group's figures from several runs, each against its own baseline (a run alternates the baseline with ours):
-    the median of ours and of the baseline, passed if it passed in most runs, and every run's ratio in the note.
-    On a shared machine one run's ratio moved 15-25 % within an hour (docs/performance.md); the median decides."""
+    the median of ours and of the baseline, passed if it passed in most runs, every run's ratio in the note, and as
+    the ratio the median of the runs' own ratios (each ours against the baseline of its own run: the ratio of the
+    two medians would pair seconds from different runs). On a shared machine one run's ratio moved 15-25 % within
+    an hour (docs/performance.md); the median decides."""
     if len(runs) == 1:
         return runs[0]
     out = []
@@ -90,7 +95,8 @@ def median_of_runs(runs: list[list[Figure]]) -> list[Figure]:
                           float(statistics.median(f.baseline for f in same)), first.unit, first.target,
                           None if not passes else sum(passes) > len(passes) / 2, first.baseline_name,
                           note=f"median of {len(same)} runs (ratios {ratios}); {first.note}".rstrip("; "),
-                          extra={**first.extra, "runs": [{"ours": f.ours, "baseline": f.baseline} for f in same]}))
+                          extra={**first.extra, "runs": [{"ours": f.ours, "baseline": f.baseline} for f in same]},
+                          paired_ratio=float(statistics.median(f.ratio for f in same))))
     return out
 
 
