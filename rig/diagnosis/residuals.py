@@ -18,9 +18,8 @@ from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
 from .bins import RADIUS_EDGES, BinComparison, BinSums, range_labels
-from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
-
+from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
 
 
 @dataclass
