@@ -134,9 +134,12 @@ def expected_sample_variance(s: np.ndarray, f: np.ndarray, n: np.ndarray) -> tup
     narrow = s_b < S_GRID[-1]
     if not np.any(narrow):
         return approx, mu4
-    exact = np.array(np.broadcast_to(approx, s_b.shape), dtype=float)
-    exact[narrow] = conditional_variance(s_b[narrow], f_b[narrow], n_b[narrow])
-    # blend over BLEND (ln s) so the prediction stays smooth where the table ends
+    s_n = s_b[narrow]
+    exact = conditional_variance(s_n, f_b[narrow], n_b[narrow])
+    # blend over BLEND (ln s) so the prediction stays smooth where the table ends; above it (the weight 1) the
+    # approximation is kept as it is, so only the narrow rows are blended
     lo, hi = np.log(BLEND[0]), np.log(S_GRID[-1])
-    w = np.clip((np.log(np.maximum(s_b, 1e-300)) - lo) / (hi - lo), 0.0, 1.0)
-    return (1.0 - w) * exact + w * approx, mu4
+    w = np.clip((np.log(np.maximum(s_n, 1e-300)) - lo) / (hi - lo), 0.0, 1.0)
+    out = np.array(np.broadcast_to(approx, s_b.shape), dtype=float)
+    out[narrow] = (1.0 - w) * exact + w * out[narrow]
+    return out, mu4
