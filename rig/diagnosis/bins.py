@@ -69,6 +69,14 @@ def pixel_columns(nu_i, m2_i, v, k4_i, has_k4, use, beta_i, n_i, g_shared):  # p
 
 
 @njit(cache=True, nogil=True, inline="always")
+def plus_columns(a, x):  # pragma: no cover - compiled
+    """A run's `pixel_columns` sums `a` with one more pixel's `x`, element by element: tuples, which stay in
+    registers where a small array would not."""
+    return (a[0] + x[0], a[1] + x[1], a[2] + x[2], a[3] + x[3], a[4] + x[4], a[5] + x[5], a[6] + x[6], a[7] + x[7],
+            a[8] + x[8], a[9] + x[9], a[10] + x[10], a[11] + x[11], a[12] + x[12], a[13] + x[13], a[14] + x[14])
+
+
+@njit(cache=True, nogil=True, inline="always")
 def add_run(row, a, ax):  # pragma: no cover - compiled
     """A run's summed `pixel_columns` `a` and nu x covariate `ax` into a bin's `row`."""
     for j in range(15):
@@ -94,8 +102,7 @@ def _group_sums(groups, cov, nu, m2, var, k4, has_k4, usable, beta, n, gain, lo,
             a, ax, run, count = zero15, 0.0, g, 0
         x = pixel_columns(nu[i], m2[i], var[i], k4[i] if has_k4 else 0.0, has_k4, usable[i], beta[i], n[i],
                           gain[i] if gain.size > 1 else gain[0])
-        a = (a[0] + x[0], a[1] + x[1], a[2] + x[2], a[3] + x[3], a[4] + x[4], a[5] + x[5], a[6] + x[6], a[7] + x[7],
-             a[8] + x[8], a[9] + x[9], a[10] + x[10], a[11] + x[11], a[12] + x[12], a[13] + x[13], a[14] + x[14])
+        a = plus_columns(a, x)
         ax += nu[i] * cov[i]
         count += 1
     if count > 0:

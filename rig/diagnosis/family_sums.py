@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..models.data import RANGE_BIN_M
-from .bins import COLUMNS, add_run, pixel_columns
+from .bins import COLUMNS, add_run, pixel_columns, plus_columns
 
 #: the families, in the places the compiled passes give them
 FAMILIES = ("range", "radius", "range_radius", "position", "brightness", "incidence")
@@ -125,8 +125,7 @@ def residual_sums(z, rho2, u, v, ir, cos, rho_inner, radius_inner, tiles, ir_inn
             a, cv, count = zero15, zero6, 0
         x = pixel_columns(nu[i], m2[i], var[i], k4[i] if has_k4 else 0.0, has_k4, usable[i], beta[i], n[i],
                           gain[i] if gain.size > 1 else gain[0])
-        a = (a[0] + x[0], a[1] + x[1], a[2] + x[2], a[3] + x[3], a[4] + x[4], a[5] + x[5], a[6] + x[6], a[7] + x[7],
-             a[8] + x[8], a[9] + x[9], a[10] + x[10], a[11] + x[11], a[12] + x[12], a[13] + x[13], a[14] + x[14])
+        a = plus_columns(a, x)
         w = nu[i]
         cv = (cv[0] + w * r[6], cv[1] + w * r[7], cv[2] + w * r[8], cv[3] + w * r[9], cv[4] + w * r[10],
               cv[5] + w * r[11])

@@ -10,6 +10,7 @@ model's prediction, added into every family's sums at once. No array larger than
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -108,9 +109,10 @@ class _Layout:
                    "incidence": self.angle_edges is not None}
         return [name for name in FAMILIES if present.get(name, True)]
 
+    @cached_property
     def spans(self) -> tuple[np.ndarray, np.ndarray]:
         """Each family's smallest label and number of labels (FAMILIES order; 0 for one the data lack): every label
-        a row can have."""
+        a row can have (made once: every piece's pass uses them)."""
         windows = sorted(self.range_windows) or [0]
         spans = {"range": (windows[0], windows[-1] - windows[0] + 1), "radius": (0, len(self.rho_edges) - 1),
                  "range_radius": (windows[0] * 10, (windows[-1] - windows[0]) * 10 + len(RADIUS_EDGES) - 1),
@@ -155,11 +157,11 @@ class _Layout:
                       np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (len(c),)), dtype=float),
                       k4 is not None, np.ascontiguousarray(c.kurtosis_usable),
                       np.ascontiguousarray(np.nan_to_num(c.pixel_kurtosis), dtype=float), np.ascontiguousarray(c.n, dtype=float),
-                      np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)), *self.spans(), out, counts)
+                      np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)), *self.spans, out, counts)
 
     def bin_sums(self, out: np.ndarray, counts: np.ndarray) -> dict[str, BinSums]:
         """The sums `add` made, as each family's BinSums (bins no row fell in left out)."""
-        lo, _ = self.spans()
+        lo, _ = self.spans
         sums = {}
         for name in self.names():
             f = FAMILIES.index(name)
@@ -222,7 +224,7 @@ def residuals(fit: ModelFit, d: ModelData, pred: Prediction | None = None) -> Re
     """Every comparison of `fit` with the data, and the verdict on them. With `pred` (the prediction for every
     row of `d`), in one piece; otherwise stop by stop."""
     layout = _Layout.of(d)
-    out, counts = new_sums(layout.spans()[1])
+    out, counts = new_sums(layout.spans[1])
     stops = StopSums()
     for c, p in ([(d, pred)] if pred is not None else ((c, fit.predict(c)) for c in d.pass_pieces())):
         layout.add(out, counts, c, p)
