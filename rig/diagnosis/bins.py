@@ -84,6 +84,19 @@ def add_run(row, a, ax):  # pragma: no cover - compiled
     row[15] += ax
 
 
+def pixel_inputs(d: ModelData, pred: Prediction) -> tuple:
+    """What `pixel_columns` reads of each row of `d` and its prediction, as the compiled passes take it: nu, M2, the
+    predicted variance and fourth cumulant (and whether there is one), whether the kurtosis is usable, the kurtosis
+    estimate (0 where none), n, and the frame-mean gain (one value, or one a row)."""
+    k4 = pred.k4_m4
+    return (np.ascontiguousarray(d.nu, dtype=float), np.ascontiguousarray(d.m2_m2, dtype=float),
+            np.ascontiguousarray(pred.var_m2, dtype=float),
+            np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (len(d),)), dtype=float),
+            k4 is not None, np.ascontiguousarray(d.kurtosis_usable),
+            np.ascontiguousarray(np.nan_to_num(d.pixel_kurtosis), dtype=float), np.ascontiguousarray(d.n, dtype=float),
+            np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)))
+
+
 @njit(cache=True, nogil=True)
 def _group_sums(groups, cov, nu, m2, var, k4, has_k4, usable, beta, n, gain, lo, out, counts):  # pragma: no cover
     """Each row's `pixel_columns`, then nu times its covariate, into `out[groups[i] - lo]` (negative groups left
@@ -127,14 +140,8 @@ class BinSums:
         lo = int(valid.min())
         out = np.zeros((int(valid.max()) - lo + 1, len(COLUMNS) + 1))
         counts = np.zeros(len(out), np.int64)
-        k4 = pred.k4_m4
         _group_sums(groups, np.ascontiguousarray(np.nan_to_num(np.broadcast_to(covariate, groups.shape)), dtype=float),
-                    np.ascontiguousarray(d.nu, dtype=float), np.ascontiguousarray(d.m2_m2, dtype=float),
-                    np.ascontiguousarray(pred.var_m2, dtype=float),
-                    np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, groups.shape), dtype=float),
-                    k4 is not None, np.ascontiguousarray(d.kurtosis_usable),
-                    np.ascontiguousarray(np.nan_to_num(d.pixel_kurtosis), dtype=float), np.ascontiguousarray(d.n, dtype=float),
-                    np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)), lo, out, counts)
+                    *pixel_inputs(d, pred), lo, out, counts)
         for g in np.flatnonzero(counts).tolist():
             key = lo + g
             self.sums[key] = self.sums[key] + out[g] if key in self.sums else out[g].copy()

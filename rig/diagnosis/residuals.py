@@ -18,7 +18,7 @@ import numpy as np
 from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
-from .bins import RADIUS_EDGES, BinComparison, BinSums, range_labels
+from .bins import RADIUS_EDGES, BinComparison, BinSums, pixel_inputs, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
 
@@ -151,13 +151,7 @@ class _Layout:
         (`rig.diagnosis.family_sums.residual_sums`)."""
         if len(c) == 0:
             return
-        k4 = pred.k4_m4
-        residual_sums(*self._row_inputs(c), np.ascontiguousarray(c.nu, dtype=float), np.ascontiguousarray(c.m2_m2, dtype=float),
-                      np.ascontiguousarray(pred.var_m2, dtype=float),
-                      np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (len(c),)), dtype=float),
-                      k4 is not None, np.ascontiguousarray(c.kurtosis_usable),
-                      np.ascontiguousarray(np.nan_to_num(c.pixel_kurtosis), dtype=float), np.ascontiguousarray(c.n, dtype=float),
-                      np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)), *self.spans, out, counts)
+        residual_sums(*self._row_inputs(c), *pixel_inputs(c, pred), *self.spans, out, counts)
 
     def bin_sums(self, out: np.ndarray, counts: np.ndarray) -> dict[str, BinSums]:
         """The sums `add` made, as each family's BinSums (bins no row fell in left out)."""
