@@ -138,7 +138,8 @@ class _Layout:
 
     def families(self, c: ModelData) -> FamilyRows:
         """Every family's bin label (-1: not in the family) and covariate for each row of chunk `c`, in one compiled
-        pass (`rig.diagnosis.family_sums.family_labels`)."""
+        pass (`rig.diagnosis.family_sums.family_labels`): the bins `add` puts each row in, to look at (the tests hold
+        them to numpy's digitize and rounding; `add` itself never makes them as arrays)."""
         labels, cov = np.empty((len(FAMILIES), len(c)), np.int64), np.empty((len(FAMILIES), len(c)))
         lo, hi = np.zeros(len(FAMILIES), np.int64), np.full(len(FAMILIES), -1, np.int64)
         family_labels(*self._row_inputs(c), labels, cov, lo, hi)
