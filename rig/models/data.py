@@ -76,7 +76,7 @@ class StopTable:
 LAZY = ("ir", "fill", "rho2", "cos_inc", "ambient_ratio", "drift_var_m2", "projector_on", "x_norm", "y_norm")
 #: per-pixel quantities derived from the data alone, cached, and handed to chunks and selections as slices
 DERIVED = ("nu", "s2_m2", "neighbour_variance", "pixel_kurtosis", "z0_m", "ln_z0_m", "range_group", "kurtosis_usable",
-           "excess_measured", "gamma_shape", "grid_offset")
+           "excess_measured", "gamma_shape", "gamma_b", "kurtosis_weight", "grid_offset")
 
 
 class ModelData(ShapeStatistics):
@@ -305,6 +305,16 @@ class ModelData(ShapeStatistics):
     def gamma_shape(self) -> np.ndarray:
         """Each pixel's Gamma shape: 1 / (2 / nu + excess / n), its s2's scatter from the measured kurtosis."""
         return np.maximum(1.0 / np.maximum(2.0 / self.nu + self.excess_measured / self.n, 1e-12), 0.5)
+
+    @cached_property
+    def gamma_b(self) -> np.ndarray:
+        """Each pixel's a s2 (`gamma_shape` times the sample variance, m^2): the Gamma log-likelihood's other weight."""
+        return self.gamma_shape * self.s2_m2
+
+    @cached_property
+    def kurtosis_weight(self) -> np.ndarray:
+        """Each pixel's weight in its range window's kurtosis: n where its kurtosis is usable, else 0."""
+        return np.where(self.kurtosis_usable, self.n, 0.0)
 
     @cached_property
     def median_range_by_stop(self) -> dict[int, float]:

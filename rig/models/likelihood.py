@@ -44,8 +44,7 @@ def likelihood_weights(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray
     own = getattr(d, "weights", None)
     if own is not None:
         return own
-    a = d.gamma_shape
-    return a, a * d.s2_m2, np.where(d.kurtosis_usable, d.n, 0.0), 1.0
+    return d.gamma_shape, d.gamma_b, d.kurtosis_weight, 1.0
 
 
 def pixel_weights(d: ModelData) -> np.ndarray | float:
@@ -279,8 +278,8 @@ def prepare(d: ModelData) -> None:
     """Compute, once, what every evaluation uses, so the chunks of `d` share it instead of each making its own."""
     if getattr(d, "weights", None) is not None:
         return
-    for name in ("nu", "s2_m2", "z0_m", "ln_z0_m", "range_group", "kurtosis_usable", "gamma_shape", "kurtosis_by_range",
-                 "fill_by_stop"):
+    for name in ("nu", "s2_m2", "z0_m", "ln_z0_m", "range_group", "kurtosis_usable", "gamma_shape", "gamma_b",
+                 "kurtosis_weight", "kurtosis_by_range", "fill_by_stop"):
         getattr(d, name)
     _fill_table(d)
     # the rows' positions among the windows and stops, for all of `d`: its pieces take slices of them (ModelData._taken)
