@@ -292,14 +292,13 @@ class Quantization(Effect):
 
     def apply(self, pred, p, d, t=None):
         q = d.depth_unit_m
-        # the matcher's step in range, m^2; none (the default) adds nothing, and no pass over the pixels for it
-        step2 = d.disparity_to_range(p.step_px ** 2) if p.step_px else 0.0
-        var_in = pred.var_m2 + step2 / 12 if p.step_px else pred.var_m2
+        var_in, k4_step = pred.var_m2, 0.0
+        if p.step_px:  # the matcher's step in range, m^2; none (the default) adds nothing: no pass over the pixels
+            step2 = d.disparity_to_range(p.step_px ** 2)
+            var_in, k4_step = var_in + step2 / 12, (step2**2) / 120
         s = np.sqrt(var_in) / q
         var_u, mu4_u = expected_sample_variance(s, d.grid_offset, d.n)
-        k4_rounding = (mu4_u - 3 * var_u**2) * q**4
-        if p.step_px:
-            k4_rounding = k4_rounding - (step2**2) / 120
+        k4_rounding = (mu4_u - 3 * var_u**2) * q**4 - k4_step
         pred.var_m2 = var_u * q**2
         pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding
         if t is None:

@@ -140,6 +140,5 @@ def expected_sample_variance(s: np.ndarray, f: np.ndarray, n: np.ndarray) -> tup
     # approximation is kept as it is, so only the narrow rows are blended
     lo, hi = np.log(BLEND[0]), np.log(S_GRID[-1])
     w = np.clip((np.log(np.maximum(s_n, 1e-300)) - lo) / (hi - lo), 0.0, 1.0)
-    out = np.array(np.broadcast_to(approx, s_b.shape), dtype=float)
-    out[narrow] = (1.0 - w) * exact + w * out[narrow]
-    return out, mu4
+    approx[narrow] = (1.0 - w) * exact + w * approx[narrow]  # `_lookup` made it, in the broadcast shape: no copy
+    return approx, mu4
