@@ -122,19 +122,24 @@ class _Layout:
         lo, size = zip(*(spans[name] if name in names else (0, 0) for name in FAMILIES))
         return np.array(lo, np.int64), np.array(size, np.int64)
 
-    def _row_inputs(self, c: ModelData) -> tuple:
-        """What `row_labels` reads of chunk `c` and of the bins."""
+    @cached_property
+    def _edges(self) -> tuple:
+        """The bins' inner edges (and the tiles) as `row_labels` takes them; empty for a family the data lack."""
         none = np.zeros(0)
+        return (np.ascontiguousarray(self.rho_edges[1:-1]), np.asarray(RADIUS_EDGES[1:-1], dtype=float),
+                np.zeros(0, np.float32) if self.tiles is None else np.asarray(self.tiles, dtype=np.float32),
+                none if self.ir_edges is None else np.ascontiguousarray(self.ir_edges[1:-1]),
+                none if self.angle_edges is None else np.ascontiguousarray(self.angle_edges[1:-1]))
+
+    def _row_inputs(self, c: ModelData) -> tuple:
+        """What `row_labels` reads of chunk `c`, then the bins' edges."""
         # a family the data lack gets a column of placeholders, not an empty one: a test for it in every row of
         # the compiled pass cost a third of the pass
         return (np.ascontiguousarray(c.z_m, dtype=float), np.ascontiguousarray(c.rho2, dtype=float),
                 np.ascontiguousarray(c.u_px, dtype=np.float32), np.ascontiguousarray(c.v_px, dtype=np.float32),
                 np.full(len(c), np.nan) if self.ir_edges is None else np.ascontiguousarray(c.ir, dtype=float),
                 np.ones(len(c)) if self.angle_edges is None else np.ascontiguousarray(c.cos_inc, dtype=float),
-                np.ascontiguousarray(self.rho_edges[1:-1]), np.asarray(RADIUS_EDGES[1:-1], dtype=float),
-                np.zeros(0, np.float32) if self.tiles is None else np.asarray(self.tiles, dtype=np.float32),
-                none if self.ir_edges is None else np.ascontiguousarray(self.ir_edges[1:-1]),
-                none if self.angle_edges is None else np.ascontiguousarray(self.angle_edges[1:-1]))
+                *self._edges)
 
     def families(self, c: ModelData) -> FamilyRows:
         """Every family's bin label (-1: not in the family) and covariate for each row of chunk `c`, in one compiled
