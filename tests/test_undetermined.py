@@ -63,3 +63,25 @@ def test_compare_and_diagnose_say_which_lambda_is_not_determined(recordings, tmp
     d = rig("diagnose", recordings["one"], "--out", tmp_path / "d")
     assert d.returncode == 0, d.stderr  # the diagnosis starts from active, whose lambda is fixed
     assert "the paper's free power law: lambda = " in d.stdout and "; NOT DETERMINED: the fitted pixels lie at one range" in d.stdout
+
+
+def test_a_stops_range_is_its_median_whether_made_here_or_given():
+    """`distinct_ranges_m` takes each flat stop's median from `ModelData.median_range_by_stop` when given: the same
+    ranges as numpy's median of the stop's positive finite ranges, for flat, tilted and NaN-holding stops."""
+    import numpy as np
+
+    from rig.models.determinacy import distinct_ranges_m
+
+    rng = np.random.default_rng(5)
+    flat = [rng.normal(z, 0.002, 400 + i) for i, z in enumerate((0.5, 0.75, 1.0, 1.6))]  # odd and even counts
+    tilted = np.exp(rng.uniform(np.log(1.8), np.log(2.6), 900))
+    holed = rng.normal(3.0, 0.003, 300)
+    holed[::7] = np.nan
+    z = np.concatenate([*flat, tilted, holed])
+    stop = np.repeat(np.arange(6), [len(g) for g in (*flat, tilted, holed)])
+    d = ModelData(z_m=z, m2_m2=np.ones_like(z), m4_m4=np.ones_like(z), n=np.full_like(z, 10.0), stop=stop)
+    given = distinct_ranges_m(z, stop, d.stop_slices(), d.median_range_by_stop)
+    assert given == distinct_ranges_m(z, stop, d.stop_slices()) == distinct_ranges_m(z, stop)
+    expected = [float(np.median(g)) for g in flat] + [float(np.median(holed[np.isfinite(holed)]))]
+    assert set(expected) <= set(given)  # each flat stop at its median exactly; the tilted one adds its steps
+    assert len(given) > len(expected) and all(1.8 / 1.05 < r < 2.6 * 1.05 for r in set(given) - set(expected))

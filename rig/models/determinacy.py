@@ -91,24 +91,31 @@ class LambdaStatus:
                 "span": None if not self.ranges_m else self.span}
 
 
-def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray, slices: list[slice] | None = None) -> tuple[float, ...]:
+def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray, slices: list[slice] | None = None,
+                      medians: dict[int, float] | None = None) -> tuple[float, ...]:
     """The distinct ranges, m, that pixels at mean range `z_m` from stops `stop` lie at (see the module). `slices`:
-    each stop's rows when they come stop by stop (`ModelData.stop_slices`), which spares a search per stop."""
+    each stop's rows when they come stop by stop (`ModelData.stop_slices`), which spares a search per stop.
+    `medians`: each stop's median of `z_m` (`ModelData.median_range_by_stop`), made already, for stops whose
+    ranges are all positive numbers."""
     z_m, stop = np.asarray(z_m, dtype=float), np.asarray(stop)
-    groups = [z_m[sl] for sl in slices] if slices is not None else [z_m[stop == s] for s in np.unique(stop)]
+    rows = ([(int(stop[sl.start]), sl) for sl in slices if sl.stop > sl.start] if slices is not None
+            else [(int(s), stop == s) for s in np.unique(stop)])
     levels: list[float] = []
     step = np.log(RANGE_STEP)
-    for z in groups:
+    for s, r in rows:
+        z = z_m[r]
         ok = np.isfinite(z) & (z > 0)
-        z = z if ok.all() else z[ok]
+        whole = bool(ok.all())
+        z = z if whole else z[ok]
         if len(z) == 0:
             continue
-        if z.max() / z.min() < FLAT_SPREAD:  # then the 10-90 % spread is too: one partition (the median), not three
-            levels.append(float(np.percentile(z, 50)))
+        known = medians.get(s) if medians is not None and whole else None
+        if z.max() / z.min() < FLAT_SPREAD:  # then the 10-90 % spread is too: the median alone
+            levels.append(known if known is not None else float(np.median(z)))
             continue
-        lo, mid, hi = np.percentile(z, [10, 50, 90])
+        lo, hi = np.percentile(z, [10, 90])
         if hi / lo < FLAT_SPREAD:
-            levels.append(float(mid))
+            levels.append(known if known is not None else float(np.median(z)))
             continue
         bins = np.floor(np.log(z) / step).astype(np.int64)
         keys, counts = np.unique(bins, return_counts=True)
@@ -125,5 +132,6 @@ def lambda_status(d: ModelData, *, free: bool = True) -> LambdaStatus:
     The ranges are kept with `d`: every headline of a diagnosis asks of the same data (0.3-0.5 s a time on a sweep)."""
     ranges = d.__dict__.get("distinct_ranges_m")
     if ranges is None:
-        ranges = d.__dict__["distinct_ranges_m"] = distinct_ranges_m(d.z_m, d.stop, d.stop_slices())
+        ranges = d.__dict__["distinct_ranges_m"] = distinct_ranges_m(d.z_m, d.stop, d.stop_slices(),
+                                                                     d.median_range_by_stop)
     return LambdaStatus(free, ranges)
