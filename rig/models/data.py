@@ -24,6 +24,7 @@ from functools import cached_property
 from typing import Any, Iterator
 
 import numpy as np
+from numba import njit
 
 from protocols.recording import CameraCalibration
 
@@ -281,9 +282,12 @@ class ModelData(ShapeStatistics):
         where it has no neighbours, its stop's pooled variance. Models predict at Z0; bins and the
         depth grid use the measured mean."""
         v, _ = self.neighbour_variance
-        stop_pooled = np.bincount(self.stop, weights=self.m2_m2) / np.maximum(np.bincount(self.stop, weights=self.nu), 1e-300)
-        v = np.where(np.isfinite(v), v, stop_pooled[self.stop])
-        return self.z_m / (1.0 + v / self.z_m**2)
+        if len(self) == 0:
+            return np.zeros(0)
+        out = np.empty(len(self))
+        _true_range(np.ascontiguousarray(self.z_m, dtype=np.float64), v, np.ascontiguousarray(self.stop),
+                    np.ascontiguousarray(self.m2_m2, dtype=np.float64), np.ascontiguousarray(self.nu, dtype=np.float64), out)
+        return out
 
     @cached_property
     def ln_z0_m(self) -> np.ndarray:
@@ -379,3 +383,19 @@ def load_samples(recording: Any, *, min_count: int = 2, positive_variance: bool 
     cal = recording.calibration
     return ModelData(**r.arrays, fb_px_m=cal.fx * cal.baseline_m, depth_unit_m=cal.depth_scale_m, stops=stops,
                      sources=r.sources, calibration=cal, n_dropped_zero=r.dropped_zero)
+
+
+@njit(cache=True, nogil=True)
+def _true_range(z_m, v_m2, stop, m2_m2, nu, out):  # pragma: no cover - compiled
+    """`ModelData.z0_m` into `out`: Z0 = Z / (1 + v / Z^2) (eq. dist_to_disp to second order), v the neighbours'
+    variance `v_m2` (m^2) or, where it is NaN, the stop's pooled variance sum M2 / sum nu."""
+    stops = stop.max() + 1
+    sum_m2, sum_nu = np.zeros(stops), np.zeros(stops)
+    for i in range(z_m.size):  # in row order, as numpy's bincount adds
+        sum_m2[stop[i]] += m2_m2[i]
+        sum_nu[stop[i]] += nu[i]
+    for s in range(stops):
+        sum_m2[s] /= max(sum_nu[s], 1e-300)
+    for i in range(z_m.size):
+        v = v_m2[i] if np.isfinite(v_m2[i]) else sum_m2[stop[i]]
+        out[i] = z_m[i] / (1.0 + v / (z_m[i] * z_m[i]))

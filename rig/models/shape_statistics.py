@@ -16,6 +16,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from numba import njit
+
 from .group_sums import group_sums
 
 #: side of the square of neighbouring pixels, centred on a pixel, whose pooled variance standardises its fourth moment
@@ -68,33 +70,32 @@ class ShapeStatistics:
         if len(self) == 0 or not (np.isfinite(self.u_px).all() and np.isfinite(self.v_px).all()):
             nan = np.full(len(self), np.nan)
             return nan, nan
-        from scipy.ndimage import uniform_filter
-
-        u, v = self.u_px.astype(np.int64), self.v_px.astype(np.int64)
-        shape = (int(v.max()) + 1, int(u.max()) + 1)
-        m2_out, nu_out = np.empty(len(self)), np.empty(len(self))
-        size = KURTOSIS_WINDOW_PX * KURTOSIS_WINDOW_PX
+        shape = (int(self.v_px.max()) + 1, int(self.u_px.max()) + 1)
+        var_out, nu_out = np.empty(len(self)), np.empty(len(self))
         slices = self.stop_slices()
         groups = slices if slices is not None else [np.flatnonzero(self.stop == s) for s in np.unique(self.stop)]
         nu = self.nu
         for m in groups:
-            vm, um = v[m], u[m]
-            place = vm * shape[1] + um
             # the whole image, row by row (a stop as loaded): the rows are the image, no scattering and gathering
-            whole = len(place) == shape[0] * shape[1] and place[0] == 0 and np.all(place[1:] - place[:-1] == 1)
+            whole = _whole_image(self.u_px[m], self.v_px[m], shape[0], shape[1])
+            if not whole:
+                vm, um = self.v_px[m].astype(np.int64), self.u_px[m].astype(np.int64)
             if whole:
-                m2_img, nu_img = self.m2_m2[m].reshape(shape), nu[m].reshape(shape)
+                m2_img = np.ascontiguousarray(self.m2_m2[m], dtype=np.float64).reshape(shape)
+                nu_img = np.ascontiguousarray(nu[m], dtype=np.float64).reshape(shape)
             else:
                 m2_img, nu_img = np.zeros(shape), np.zeros(shape)
                 m2_img[vm, um] = self.m2_m2[m]
                 nu_img[vm, um] = nu[m]
-            m2_sum = uniform_filter(m2_img, KURTOSIS_WINDOW_PX, mode="constant") * size
-            nu_sum = uniform_filter(nu_img, KURTOSIS_WINDOW_PX, mode="constant") * size
+            if whole and isinstance(m, slice):  # written straight into the rows
+                _others_in_window(m2_img, nu_img, KURTOSIS_WINDOW_PX // 2, var_out[m].reshape(shape),
+                                  nu_out[m].reshape(shape))
+                continue
+            var_img, nu_v_img = np.empty(shape), np.empty(shape)
+            _others_in_window(m2_img, nu_img, KURTOSIS_WINDOW_PX // 2, var_img, nu_v_img)
             rows = (lambda img: img.ravel()) if whole else (lambda img: img[vm, um])  # the images back to rows
-            m2_out[m] = rows(m2_sum) - self.m2_m2[m]
-            nu_out[m] = np.round(rows(nu_sum) - nu[m])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(nu_out > 4, m2_out / nu_out, np.nan), np.where(nu_out > 4, nu_out, np.nan)
+            var_out[m], nu_out[m] = rows(var_img), rows(nu_v_img)
+        return var_out, nu_out
 
     @cached_property
     def pixel_kurtosis(self) -> np.ndarray:
@@ -167,3 +168,51 @@ class ShapeStatistics:
             return
         for sl in slices:
             yield self._taken(sl, derived=True)
+
+
+@njit(cache=True, nogil=True)
+def _others_in_window(m2, nu, half, var_out, nu_out):  # pragma: no cover - compiled
+    """For each pixel of the images `m2` (M2, m^2) and `nu` (degrees of freedom; 0 where no pixel), the pooled
+    variance sum M2 / sum nu over the other pixels of the (2 half + 1)^2 square centred on it (none beyond the
+    image), and that sum nu; NaN both where it is 4 or less. Row by row: the square's columns are summed down,
+    then along the row (each an exact sum of its 2 half + 1 terms, not a running one)."""
+    h, w = m2.shape
+    col_m2, col_nu, sq_m2, sq_nu = np.empty(w), np.empty(w), np.empty(w), np.empty(w)
+    for y in range(h):
+        col_m2[:] = 0.0
+        col_nu[:] = 0.0
+        for k in range(max(0, y - half), min(h, y + half + 1)):
+            for x in range(w):
+                col_m2[x] += m2[k, x]
+                col_nu[x] += nu[k, x]
+        sq_m2[:] = 0.0
+        sq_nu[:] = 0.0
+        for off in range(-half, half + 1):  # as slices, indexed from 0: no index can be negative, so it vectorises
+            lo, hi = max(0, -off), min(w, w - off)
+            to_m2, to_nu, from_m2, from_nu = sq_m2[lo:hi], sq_nu[lo:hi], col_m2[lo + off:hi + off], col_nu[lo + off:hi + off]
+            for i in range(hi - lo):
+                to_m2[i] += from_m2[i]
+                to_nu[i] += from_nu[i]
+        for x in range(w):
+            s_m2, s_nu = sq_m2[x], sq_nu[x]
+            n_other = np.rint(s_nu - nu[y, x])
+            if n_other > 4:
+                var_out[y, x] = (s_m2 - m2[y, x]) / n_other
+                nu_out[y, x] = n_other
+            else:
+                var_out[y, x] = np.nan
+                nu_out[y, x] = np.nan
+
+
+@njit(cache=True, nogil=True)
+def _whole_image(u, v, h, w):  # pragma: no cover - compiled
+    """Whether the rows at positions `u`, `v` (px) are every pixel of an h x w image, row by row."""
+    if u.size != h * w:
+        return False
+    i = 0
+    for y in range(h):
+        for x in range(w):
+            if u[i] != x or v[i] != y:
+                return False
+            i += 1
+    return True
