@@ -10,7 +10,9 @@ covariate of any set of pixel rows is a gather or a formula, computed when it is
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 from numba import njit
@@ -104,8 +106,63 @@ def _plane_sums(mean_m, valid, cx, cy, fx, fy):  # pragma: no cover - compiled
 
 
 def incidence_from_normal(normal: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
-    """cos of the angle between the ray (xn, yn, 1) and the plane's normal."""
-    return np.abs(normal[0] * xn + normal[1] * yn + normal[2]) / np.sqrt(xn * xn + yn * yn + 1.0)
+    """cos of the angle between the ray (xn, yn, 1) and the plane's normal (`_cos_to_plane`), for arrays of any shape."""
+    xn, yn = np.broadcast_arrays(np.asarray(xn, dtype=np.float64), np.asarray(yn, dtype=np.float64))
+    out = np.empty(xn.shape)
+    _incidence_rows(np.asarray(normal, dtype=np.float64), np.ascontiguousarray(xn).ravel(),
+                    np.ascontiguousarray(yn).ravel(), out.reshape(-1))
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _normalised(u, v, cx, cy, fx, fy):  # pragma: no cover - compiled
+    """A pixel's ray direction (xn, yn, 1) from its position (u, v) in px: xn = (u - cx) / fx, yn = (v - cy) / fy."""
+    return (np.float64(u) - cx) / fx, (np.float64(v) - cy) / fy
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cos_to_plane(normal, xn, yn):  # pragma: no cover - compiled
+    """cos of the angle between the ray (xn, yn, 1) and the plane's unit normal: |n . r| / |r|."""
+    return abs(normal[0] * xn + normal[1] * yn + normal[2]) / np.sqrt(xn * xn + yn * yn + 1.0)
+
+
+@njit(cache=True, nogil=True)
+def _incidence_rows(normal, xn, yn, out):  # pragma: no cover - compiled
+    for i in range(out.size):
+        out[i] = _cos_to_plane(normal, xn[i], yn[i])
+
+
+#: what `_position_rows` makes of each row's position
+X_NORM, Y_NORM, RHO2, COS_INC = 0, 1, 2, 3
+
+
+@njit(cache=True, nogil=True)
+def _position_rows(u, v, cx, cy, fx, fy, normal, what, out):  # pragma: no cover - compiled
+    """For rows at (u, v) px, one covariate of the position (`what`): xn, yn, rho^2 = xn^2 + yn^2, or the incidence
+    cosine on the plane of unit `normal` (`_cos_to_plane`)."""
+    for i in range(out.size):
+        xn, yn = _normalised(u[i], v[i], cx, cy, fx, fy)
+        if what == X_NORM:
+            out[i] = xn
+        elif what == Y_NORM:
+            out[i] = yn
+        elif what == RHO2:
+            out[i] = xn * xn + yn * yn
+        else:
+            out[i] = _cos_to_plane(normal, xn, yn)
+
+
+@njit(cache=True, nogil=True)
+def _nearest_pixel_rows(image, u, v, out):  # pragma: no cover - compiled
+    """`image` at each row's nearest pixel (positions rounded half to even, clipped to the image; NaN: none)."""
+    h, w = image.shape
+    for i in range(out.size):
+        if not (np.isfinite(u[i]) and np.isfinite(v[i])):
+            out[i] = np.nan
+            continue
+        row = np.int64(min(max(np.rint(v[i]), 0), h - 1))
+        col = np.int64(min(max(np.rint(u[i]), 0), w - 1))
+        out[i] = image[row, col]
 
 
 def smoothed(image: np.ndarray, window_px: int) -> np.ndarray:
@@ -217,24 +274,22 @@ def drift_variance_m2(stop: StopData) -> tuple[float, float]:
 def covariate_rows(name: str, d) -> np.ndarray:
     """One covariate (a `ModelData.LAZY` name) for the rows of `d`, from its stop sources and calibration."""
     cal, sources = d.calibration, d.sources
-    if name in ("x_norm", "y_norm", "rho2"):
-        x = (d.u_px.astype(np.float64) - cal.cx) / cal.fx
-        y = (d.v_px.astype(np.float64) - cal.cy) / cal.fy
-        return {"x_norm": x, "y_norm": y, "rho2": x * x + y * y}[name]
-    if name == "cos_inc":
+    if name in ("x_norm", "y_norm", "rho2", "cos_inc"):  # compiled passes over the positions, stop by stop for the plane
+        what = {"x_norm": X_NORM, "y_norm": Y_NORM, "rho2": RHO2, "cos_inc": COS_INC}[name]
         out = np.empty(len(d))
-        for s, rows in _rows_by_stop(d):
-            out[rows] = incidence_from_normal(sources[s].normal, d.x_norm[rows], d.y_norm[rows])
+        for s, rows in _rows_by_stop(d) if what == COS_INC else [(0, slice(None))]:
+            normal = np.asarray(sources[s].normal, dtype=np.float64) if what == COS_INC else np.zeros(3)
+            with _into(out, rows) as part:
+                _position_rows(np.ascontiguousarray(d.u_px[rows]), np.ascontiguousarray(d.v_px[rows]),
+                               float(cal.cx), float(cal.cy), float(cal.fx), float(cal.fy), normal, what, part)
         return out
     if name in ("ir", "ambient_ratio"):
         out = np.full(len(d), np.nan)
         for s, rows in _rows_by_stop(d):
             image = sources[s].ir_dn if name == "ir" else sources[s].ambient
             if image is not None:  # the nearest pixel (grouped data's nodes sit between pixels)
-                h, w = image.shape
-                vi = np.clip(np.rint(d.v_px[rows]), 0, h - 1).astype(np.intp)
-                ui = np.clip(np.rint(d.u_px[rows]), 0, w - 1).astype(np.intp)
-                out[rows] = image[vi, ui]
+                with _into(out, rows) as part:
+                    _nearest_pixel_rows(image, np.ascontiguousarray(d.u_px[rows]), np.ascontiguousarray(d.v_px[rows]), part)
         return out
     per_stop = {"fill": lambda src, rows: d.n[rows] / src.n_frames,
                 "drift_var_m2": lambda src, rows: src.drift_var_m2(d.z_m[rows]),
@@ -246,6 +301,17 @@ def covariate_rows(name: str, d) -> np.ndarray:
     for rows, values in parts:
         out[rows] = values
     return out
+
+
+@contextmanager
+def _into(out: np.ndarray, rows) -> Iterator[np.ndarray]:
+    """Where a compiled pass writes `out[rows]`: the rows themselves for a slice, else a buffer copied in after."""
+    if isinstance(rows, slice):
+        yield out[rows]
+        return
+    part = np.empty(len(rows), out.dtype)
+    yield part
+    out[rows] = part
 
 
 def _size(rows, total: int) -> int:
