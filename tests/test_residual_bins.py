@@ -3,6 +3,7 @@ one numpy's own digitize, round-half-to-even and float32 arithmetic give, edges,
 included."""
 
 import numpy as np
+import pytest
 
 from rig.diagnosis.bins import RADIUS_EDGES
 from rig.diagnosis.family_sums import POSITION_TILES
@@ -120,3 +121,44 @@ def test_a_bins_sums_are_the_pooled_quantities_by_their_definitions():
             np.testing.assert_allclose(got[COLUMNS.index(name)], col[rows].sum(), rtol=1e-12, err_msg=name)
         np.testing.assert_allclose(got[-1], (nu * np.nan_to_num(covariate))[rows].sum(), rtol=1e-12)
     assert -1 not in sums.sums
+
+
+@pytest.mark.parametrize("per_row", [False, True])
+def test_stop_sums_are_numpys_sums_of_each_quantity(per_row):
+    """`StopSums.add` (one compiled pass) against numpy's sums of each quantity by its definition, stop by stop,
+    with the prediction's common wander, gain and fill given once for all rows or one a row."""
+    from rig.diagnosis.residuals import StopSums
+    from rig.models import Prediction
+
+    rng = np.random.default_rng(21)
+    rows = 5_000
+    stop = np.sort(rng.choice([0, 2, 3, 7], rows)).astype(np.int32)  # stop 1 and 4-6 absent: no row for them
+    n = rng.integers(1, 40, rows).astype(float)
+    fill = rng.uniform(0.0, 1.0, rows)
+    fill[:20] = 0.0  # no valid frame: frames from the floor 1e-12
+    z = rng.uniform(0.5, 3.0, rows)
+    d = ModelData(z_m=z, m2_m2=np.full(rows, 1e-6), m4_m4=np.full(rows, 3e-12), n=n, stop=stop, fill=fill)
+    var = rng.uniform(1e-7, 1e-5, rows)
+    common, gain, fill_p = ((rng.uniform(0, 1e-6, rows), rng.uniform(1, 2, rows), rng.uniform(0.5, 1, rows)) if per_row
+                            else (3e-7, 1.4, None))
+    pred = Prediction(var, np.ones(rows), np.zeros(rows), var_m2=var, fill=fill_p, common_inv2=common,
+                      frame_mean_gain=gain)
+    sums = StopSums()
+    half = rows // 2  # in two chunks: the second adds to the first's stops
+    for part in (slice(0, half), slice(half, rows)):
+        c = d.select(np.arange(rows)[part])
+        sums.add(c, Prediction(var[part], np.ones(len(c)), np.zeros(len(c)), var_m2=var[part],
+                               fill=None if fill_p is None else fill_p[part],
+                               common_inv2=common if np.ndim(common) == 0 else common[part],
+                               frame_mean_gain=gain if np.ndim(gain) == 0 else gain[part]))
+    assert sorted(sums.rows) == [0, 2, 3, 7]
+    fp = np.broadcast_to(1.0 if fill_p is None else fill_p, rows)
+    cm, g = np.broadcast_to(common, rows), np.broadcast_to(gain, rows)
+    frames = n / np.maximum(fill, 1e-12)
+    w = np.maximum(n - 1, 0)
+    for s in sums.rows:
+        m = stop == s
+        want = [m.sum(), fill[m].sum(), (fill * (1 - fill) / frames)[m].sum(), frames[m].sum(), fp[m].sum(), z[m].sum(),
+                ((var - cm * z**4) / z**4 * g)[m].sum(), cm[m].sum(), (w * cm * z**4)[m].sum(), (w * var)[m].sum(),
+                (fp * (1 - fp) / frames)[m].sum()]
+        np.testing.assert_allclose(sums.rows[s], want, rtol=1e-12, atol=1e-300)
