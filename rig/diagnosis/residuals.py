@@ -19,6 +19,7 @@ from numba import njit
 from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
+from ..models.order_statistics import quantiles
 from .bins import RADIUS_EDGES, BinComparison, BinSums, pixel_inputs, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
@@ -97,8 +98,8 @@ class _Layout:
             ir_all[n_ir:n_ir + len(ir)] = ir
             n_ir += len(ir)
         positions = len(d) and np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()
-        # partitioned in place (overwrite_input): no second copy of every pixel's brightness at the headline's peak
-        ir_edges = np.quantile(ir_all[:n_ir], np.linspace(0, 1, 7), overwrite_input=True).astype(np.float64) if n_ir > 100 else None
+        # np.quantile's values, by a histogram selection (rig.models.order_statistics): no partition of every brightness
+        ir_edges = quantiles(ir_all[:n_ir], np.linspace(0, 1, 7)).astype(np.float64) if n_ir > 100 else None
         del ir_all
         angle_edges = np.linspace(a_lo, a_hi + 1e-9, 6) if a_hi - a_lo > 1 else None
         return cls(np.linspace(0, rho_max + 1e-9, 6), (u_max + 1, v_max + 1) if positions else None, ir_edges,

@@ -30,6 +30,7 @@ from protocols.recording import CameraCalibration
 
 from .covariates import StopSource, covariate_rows
 from .loading import BRIGHTNESS_WINDOW_PX, LAG1_FACTS, read_rows
+from .order_statistics import median
 from .rounding import grid_offset
 from .shape_statistics import ShapeStatistics
 #: range windows of the kurtosis term and of the diagnosis (m)
@@ -327,7 +328,7 @@ class ModelData(ShapeStatistics):
         slices = self.stop_slices()
         rows = ([(int(self.stop[sl.start]), sl) for sl in slices] if slices is not None
                 else [(int(s), self.stop == s) for s in np.unique(self.stop)])
-        return {s: float(np.median(self.z_m[r])) for s, r in rows}
+        return {s: median(self.z_m[r]) for s, r in rows}  # np.median's value (rig.models.order_statistics)
 
     @cached_property
     def fill_by_stop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

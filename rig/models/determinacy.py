@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .data import ModelData
+from .order_statistics import median
 
 #: fewest distinct ranges from which lambda is determined
 MIN_RANGES = 3
@@ -111,11 +112,11 @@ def distinct_ranges_m(z_m: np.ndarray, stop: np.ndarray, slices: list[slice] | N
             continue
         known = medians.get(s) if medians is not None and whole else None
         if z.max() / z.min() < FLAT_SPREAD:  # then the 10-90 % spread is too: the median alone
-            levels.append(known if known is not None else float(np.median(z)))
+            levels.append(known if known is not None else median(z))
             continue
         lo, hi = np.percentile(z, [10, 90])
         if hi / lo < FLAT_SPREAD:
-            levels.append(known if known is not None else float(np.median(z)))
+            levels.append(known if known is not None else median(z))
             continue
         bins = np.floor(np.log(z) / step).astype(np.int64)
         keys, counts = np.unique(bins, return_counts=True)
