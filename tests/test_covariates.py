@@ -73,3 +73,21 @@ def test_the_smoothed_brightness_is_scipys_gaussian_filter_bit_for_bit(shape):
     assert np.array_equal(smoothed(image, 7), gaussian_filter(image.astype(np.float64), sigma=7, mode="reflect"))
     clipped = rng.random(shape) < 0.01
     assert np.array_equal(smoothed(clipped, 3), gaussian_filter(clipped.astype(np.float64), sigma=3, mode="reflect"))
+
+
+def test_the_pixel_noise_of_inverse_range_is_numpys_mean_by_its_definition():
+    """The drift's pixel-noise term (`_noise_of_inverse_range`, one compiled pass): the pixels with n > 1 and a finite
+    variance and range, and their sum of s2 / Z^4, against numpy."""
+    from rig.models.covariates import _noise_of_inverse_range
+
+    rng = np.random.default_rng(12)
+    count = rng.integers(0, 12, 5000).astype(np.uint32)
+    m2, z = rng.gamma(2.0, 1e-6, 5000), rng.uniform(0.5, 3.0, 5000)
+    z[::17] = np.nan
+    m2[::23] = np.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s2 = np.where(count > 1, m2 / (count - 1.0), np.nan)
+    ok = np.isfinite(s2) & np.isfinite(z)
+    pixels, total = _noise_of_inverse_range(count, m2, z)
+    assert pixels == ok.sum() and 0 < pixels < 5000
+    assert total == pytest.approx(np.sum(s2[ok] / z[ok] ** 4), rel=1e-12)

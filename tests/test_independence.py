@@ -111,3 +111,22 @@ def test_a_temporal_filter_is_named_frames_not_independent_and_never_within_nois
 
     fit = fit_recording(path)  # rig fit says it too, with the widened errors
     assert any(n.startswith("Frames not independent: lag-1 correlation") for n in fit.notes), fit.notes
+
+
+def test_the_pooled_lag1_sums_are_numpys_sums_by_their_definition():
+    """`pooled_lag1` (one compiled pass) against numpy's sums over the pixels with a pair and two samples."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(6)
+    shape = (37, 53)
+    count = rng.integers(0, 30, shape).astype(np.uint32)
+    pairs = np.minimum(rng.integers(0, 30, shape), np.maximum(count.astype(int) - 1, 0)).astype(np.uint32)
+    m2, lag = rng.gamma(2.0, 1e-6, shape), rng.normal(0, 1e-6, shape)
+    s = SimpleNamespace(count=count, lag1_pairs=pairs, m2_m2=m2, lag1_m2=lag)
+    ok = (pairs > 0) & (count > 1)
+    assert 0 < ok.sum() < ok.size
+    n, p = count[ok].astype(float), pairs[ok].astype(float)
+    v = m2[ok] / (n - 1)
+    np.testing.assert_allclose(pooled_lag1(s), [np.sum(lag[ok] + p * v / n), np.sum(p * v), np.sum(p)], rtol=1e-12)
+    none = SimpleNamespace(count=count, lag1_pairs=np.zeros(shape, np.uint32), m2_m2=m2, lag1_m2=lag)
+    assert pooled_lag1(none) == (0.0, 0.0, 0.0)

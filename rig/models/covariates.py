@@ -47,7 +47,7 @@ class StopSource:
         ir = smoothed(stop.ir_mean, window_px).astype(np.float32) if stop.ir_mean is not None else None
         amb = ambient_ratio(stop.ir_mean, stop.ambient_ir_mean, window_px)
         clipped = clipped_nearby(stop.ir_saturated, window_px)
-        if clipped is not None:  # saturated brightness is not a brightness: no covariate value there
+        if clipped is not None and clipped.any():  # saturated brightness is not a brightness: no covariate value there
             ir = np.where(clipped, np.float32(np.nan), ir) if ir is not None else None
             amb = np.where(clipped, np.nan, amb) if amb is not None else None
         d_var, z_c = drift_variance_m2(stop)
@@ -82,26 +82,30 @@ def plane_normal(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibration) 
 
 @njit(cache=True, nogil=True)
 def _plane_sums(mean_m, valid, cx, cy, fx, fy):  # pragma: no cover - compiled
-    """A^T A and A^T b of the fit 1/Z = p xn + q yn + r over the valid pixels, in one pass over the image."""
-    ata = np.zeros((3, 3))
-    atb = np.zeros(3)
-    row = np.empty(3)
+    """A^T A and A^T b of the fit 1/Z = p xn + q yn + r over the valid pixels, in one pass over the image: with a
+    row (xn, yn, 1), the sums of xn^2, xn yn, xn, yn^2, yn, 1, xn / Z, yn / Z and 1 / Z, kept in scalars."""
+    sxx = sxy = sx = syy = sy = s1 = bx = by = b1 = 0.0
     count = 0
     h, w = mean_m.shape
     for v in range(h):
+        yn = (v - cy) / fy
         for u in range(w):
             if not valid[v, u]:
                 continue
-            row[0] = (u - cx) / fx
-            row[1] = (v - cy) / fy
-            row[2] = 1.0
+            xn = (u - cx) / fx
             inv = 1.0 / mean_m[v, u]
-            for i in range(3):
-                atb[i] += row[i] * inv
-                for j in range(3):
-                    ata[i, j] += row[i] * row[j]
+            sxx += xn * xn
+            sxy += xn * yn
+            sx += xn
+            syy += yn * yn
+            sy += yn
+            s1 += 1.0
+            bx += xn * inv
+            by += yn * inv
+            b1 += inv
             count += 1
-    return ata, atb, count
+    ata = np.array([[sxx, sxy, sx], [sxy, syy, sy], [sx, sy, s1]])
+    return ata, np.array([bx, by, b1]), count
 
 
 def incidence_from_normal(normal: np.ndarray, xn: np.ndarray, yn: np.ndarray) -> np.ndarray:
@@ -296,15 +300,30 @@ def drift_inverse_variance(stop: StopData) -> float | None:
     o = series.inverse_range_offset_per_m
     if len(o) < 3 or not np.isfinite(o).all():
         return None
-    var_p = stop.stats.variance_m2
-    ok = np.isfinite(var_p) & np.isfinite(stop.stats.mean_m)
-    n = float(np.mean(series.valid_fraction)) * var_p.size if np.isfinite(series.valid_fraction).all() else ok.sum()
-    if ok.sum() < 2 or n < 2:
+    st = stop.stats
+    pixels, noise_sum = _noise_of_inverse_range(*(np.ascontiguousarray(a).ravel() for a in (st.count, st.m2_m2, st.mean_m)))
+    n = float(np.mean(series.valid_fraction)) * st.count.size if np.isfinite(series.valid_fraction).all() else pixels
+    if pixels < 2 or n < 2:
         return None
-    var_ok, z_ok = (var_p, stop.stats.mean_m) if ok.all() else (var_p[ok], stop.stats.mean_m[ok])
-    z2 = z_ok * z_ok
-    noise = float(np.mean(var_ok / (z2 * z2))) / n  # Z^4 as (Z^2)^2: numpy's pow costs 30 products a value
+    noise = noise_sum / pixels / n
     return max((float(np.var(o, ddof=1)) - noise) / (1.0 - 1.0 / n), 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _noise_of_inverse_range(count, m2, mean_m):  # pragma: no cover - compiled
+    """Over the pixels with a finite variance s2 = M2 / (n - 1) (n > 1) and mean range Z: how many, and the sum of
+    s2 / Z^4, the variance of each one's 1/z (d(1/z) = -dz / z^2); one pass, no temporary images."""
+    pixels, total = 0, 0.0
+    for i in range(count.size):
+        n = np.float64(count[i])
+        if not n > 1:
+            continue
+        s2, z = m2[i] / (n - 1.0), mean_m[i]
+        if np.isfinite(s2) and np.isfinite(z):
+            z2 = z * z
+            total += s2 / (z2 * z2)
+            pixels += 1
+    return pixels, total
 
 
 def drift_variance_m2(stop: StopData) -> tuple[float, float]:

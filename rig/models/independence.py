@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 #: the pooled correlation's sampling error is taken as at least this (pixels sharing a matching window)
 SE_FLOOR = 0.02
@@ -50,16 +51,24 @@ def pooled_lag1(stats: Any) -> tuple[float, float, float]:
     m^2, m^2 and pairs; (nan, nan, 0) when the stop does not record them (not checked)."""
     if getattr(stats, "lag1_pairs", None) is None or getattr(stats, "lag1_m2", None) is None:
         return float("nan"), float("nan"), 0.0
-    n = stats.count.astype(np.float64)
-    p = stats.lag1_pairs.astype(np.float64)
-    ok = (p > 0) & (n > 1)
-    if not ok.any():
-        return 0.0, 0.0, 0.0
-    every = ok.all()  # the usual case: every pixel has a pair, and gathering them would copy every array
-    n, p, m2, lag = (n, p, stats.m2_m2, stats.lag1_m2) if every else (n[ok], p[ok], stats.m2_m2[ok], stats.lag1_m2[ok])
-    v = m2 / (n - 1)
-    num = float(np.sum(lag + p * v / n))
-    return num, float(np.sum(p * v)), float(np.sum(p))
+    num, den, pairs = _lag1_sums(*(np.ascontiguousarray(a).ravel() for a in
+                                   (stats.count, stats.lag1_pairs, stats.m2_m2, stats.lag1_m2)))
+    return num, den, pairs
+
+
+@njit(cache=True, nogil=True)
+def _lag1_sums(count, pairs, m2, lag1):  # pragma: no cover - compiled
+    """`pooled_lag1`'s sums in one pass over the pixels (no temporary images): over those with a pair p > 0 and
+    n > 1 samples, with v = M2 / (n - 1): sum (C1 + p v / n), sum p v and sum p."""
+    num, den, total = 0.0, 0.0, 0.0
+    for i in range(count.size):
+        n, p = np.float64(count[i]), np.float64(pairs[i])
+        if p > 0 and n > 1:
+            v = m2[i] / (n - 1.0)
+            num += lag1[i] + p * v / n
+            den += p * v
+            total += p
+    return num, den, total
 
 
 def rho_and_se(num: float, den: float, pairs: float) -> tuple[float, float]:

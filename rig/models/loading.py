@@ -115,8 +115,8 @@ class _Rows:
             h, w = keep.shape
             b = a + h * w
             self.z[a:b], self.m2[a:b], self.m4[a:b], self.n[a:b] = (x.ravel() for x in (s.mean_m, s.m2_m2, s.m4_m4, s.count))
-            self.u[a:b] = np.tile(np.arange(w, dtype=np.float32), h)
-            self.v[a:b] = np.repeat(np.arange(h, dtype=np.float32), w)
+            self.u[a:b].reshape(h, w)[:] = np.arange(w, dtype=np.float32)  # broadcast: no image-sized temporaries
+            self.v[a:b].reshape(h, w)[:] = np.arange(h, dtype=np.float32)[:, None]
             self.stop[a:b] = index
             self.size = b
             return
