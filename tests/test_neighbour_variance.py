@@ -73,3 +73,20 @@ def test_the_true_range_is_the_formula_with_the_stops_pooled_variance_where_the_
     v = np.where(np.isfinite(var), var, [pooled[s] for s in d.stop])
     np.testing.assert_allclose(d.z0_m, d.z_m / (1 + v / d.z_m**2), rtol=1e-15)
     assert np.all(d.z0_m < d.z_m)  # the mean of 1/disparity's samples sits above the true range
+
+
+def test_the_pixel_kurtosis_is_the_formula_in_numpy_to_the_last_bit():
+    """`pixel_kurtosis` (compiled) against the unbiased estimator written with numpy arrays, edge values included:
+    no neighbours (nu = 0), a variance of 0, one sample, NaN and infinite M4 give what numpy gives."""
+    d = _stops(np.random.default_rng(13), holes=0.5)
+    d.m4_m4 = d.m2_m2**2 / np.maximum(d.n - 1, 1) * np.random.default_rng(14).uniform(1, 5, len(d))
+    v, nu_v = (a.copy() for a in d.neighbour_variance)
+    v[:3], nu_v[3:6], d.n[6:8], d.m4_m4[8], d.m4_m4[9] = 0.0, 0.0, 1.0, np.inf, np.nan
+    d.__dict__["neighbour_variance"] = (v, nu_v)
+    n = d.n
+    with np.errstate(all="ignore"):
+        m4_over_sigma4 = d.m4_m4 / v**2 * (nu_v - 2) * (nu_v - 4) / nu_v**2
+        want = (m4_over_sigma4 * n**2 / (n - 1) - 3 * (2 * n - 3)) / (n**2 - 3 * n + 3)
+        got = d.pixel_kurtosis
+    assert np.isfinite(want).sum() > len(d) / 3 and not np.isfinite(want[:10]).any()
+    assert np.array_equal(got, want, equal_nan=True)
