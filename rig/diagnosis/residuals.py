@@ -208,16 +208,18 @@ class StopSums:
         lag-1 correlation, rig.models.independence) and the predicted fill's binomial term."""
         if len(c) == 0:
             return
-        def per_row(x) -> np.ndarray:  # one value for every row, or one a row
-            return np.ascontiguousarray(np.atleast_1d(np.asarray(1.0 if x is None else x, dtype=float)))
-
         out = np.zeros((int(c.stop.max()) + 1, 11))
         _stop_sums(np.ascontiguousarray(c.stop), np.ascontiguousarray(c.fill, dtype=float),
                    np.ascontiguousarray(c.n, dtype=float), np.ascontiguousarray(c.z_m, dtype=float),
-                   per_row(pred.var_m2), per_row(pred.common_inv2), per_row(pred.frame_mean_gain), per_row(pred.fill),
-                   out)
+                   _per_row(pred.var_m2), _per_row(pred.common_inv2), _per_row(pred.frame_mean_gain),
+                   _per_row(pred.fill), out)
         for key in np.flatnonzero(out[:, 0]).tolist():
             self.rows[key] = self.rows[key] + out[key] if key in self.rows else out[key].copy()
+
+
+def _per_row(x: np.ndarray | float | None) -> np.ndarray:
+    """A prediction's term as `_stop_sums` takes it: one value for every row (None: 1), or one a row."""
+    return np.ascontiguousarray(np.atleast_1d(np.asarray(1.0 if x is None else x, dtype=float)))
 
 
 @njit(cache=True, nogil=True)

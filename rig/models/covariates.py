@@ -131,6 +131,7 @@ def _cos_to_plane(normal, xn, yn):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def _incidence_rows(normal, xn, yn, out):  # pragma: no cover - compiled
+    """`_cos_to_plane` of each ray (xn[i], yn[i], 1) into `out`."""
     for i in range(out.size):
         out[i] = _cos_to_plane(normal, xn[i], yn[i])
 

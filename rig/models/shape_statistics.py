@@ -15,7 +15,6 @@ from functools import cached_property
 from typing import Any, Iterator
 
 import numpy as np
-
 from numba import njit
 
 from .group_sums import group_sums
@@ -78,23 +77,23 @@ class ShapeStatistics:
         for m in groups:
             # the whole image, row by row (a stop as loaded): the rows are the image, no scattering and gathering
             whole = _whole_image(self.u_px[m], self.v_px[m], shape[0], shape[1])
-            if not whole:
-                vm, um = self.v_px[m].astype(np.int64), self.u_px[m].astype(np.int64)
             if whole:
                 m2_img = np.ascontiguousarray(self.m2_m2[m], dtype=np.float64).reshape(shape)
                 nu_img = np.ascontiguousarray(nu[m], dtype=np.float64).reshape(shape)
+                if isinstance(m, slice):  # written straight into the rows
+                    _others_in_window(m2_img, nu_img, KURTOSIS_WINDOW_PX // 2, var_out[m].reshape(shape),
+                                      nu_out[m].reshape(shape))
+                    continue
             else:
+                vm, um = self.v_px[m].astype(np.int64), self.u_px[m].astype(np.int64)
                 m2_img, nu_img = np.zeros(shape), np.zeros(shape)
                 m2_img[vm, um] = self.m2_m2[m]
                 nu_img[vm, um] = nu[m]
-            if whole and isinstance(m, slice):  # written straight into the rows
-                _others_in_window(m2_img, nu_img, KURTOSIS_WINDOW_PX // 2, var_out[m].reshape(shape),
-                                  nu_out[m].reshape(shape))
-                continue
             var_img, nu_v_img = np.empty(shape), np.empty(shape)
             _others_in_window(m2_img, nu_img, KURTOSIS_WINDOW_PX // 2, var_img, nu_v_img)
-            rows = (lambda img: img.ravel()) if whole else (lambda img: img[vm, um])  # the images back to rows
-            var_out[m], nu_out[m] = rows(var_img), rows(nu_v_img)
+            # the images back to rows
+            var_out[m] = var_img.ravel() if whole else var_img[vm, um]
+            nu_out[m] = nu_v_img.ravel() if whole else nu_v_img[vm, um]
         return var_out, nu_out
 
     @cached_property
