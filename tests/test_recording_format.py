@@ -104,3 +104,43 @@ def test_a_stop_whose_median_range_is_not_in_metres_is_refused(tmp_path, scale, 
         else:
             with pytest.raises(RecordingError, match=error):
                 rec.stop("1.500m")
+
+
+def _replace(g, name, change):
+    values = change(g[name][()])
+    del g[name]
+    g[name] = values
+
+
+@pytest.mark.parametrize("name,change,message", [
+    ("count", lambda a: a.astype(float) + 0.5, r"count holds values that are not whole numbers of samples"),
+    ("count", lambda a: a.astype(np.int32) * np.where(np.arange(a.size).reshape(a.shape) == 7, -1, 1),
+     r"count holds values that are not whole numbers"),
+    ("mean_m", lambda a: np.where(np.arange(a.size).reshape(a.shape) % 97 == 3, np.nan, a), r"mean_m is not finite at 6 pixels"),
+    ("mean_m", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 5, np.inf, a), r"mean_m is not finite at 1 pixels"),
+    ("m2_m2", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 9, -1e-9, a), r"m2_m2 is negative or not finite at 1 pixels"),
+    ("m2_m2", lambda a: np.where(np.arange(a.size).reshape(a.shape) < 2, np.nan, a), r"m2_m2 is negative or not finite at 2 pixels"),
+    ("m4_m4", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 4, np.inf, a), r"m4_m4 is negative or not finite at 1 pixels"),
+])
+def test_a_stops_impossible_values_are_named_with_how_many(tmp_path, name, change, message):
+    """check_stop's refusals of a field's values (docs/reliability.md), each with the field and how many pixels."""
+    path = tmp_path / "bad.h5"
+    write_by_hand(path)
+    with h5py.File(path, "a") as f:
+        g = f["stops"]["1.500m"]
+        if "m4_m4" not in g:
+            g["m4_m4"] = 3 * g["m2_m2"][()] ** 2 / np.maximum(g["count"][()], 1)
+        _replace(g, name, change)
+    with Recording(path) as rec:
+        with pytest.raises(RecordingError, match=message):
+            rec.stop("1.500m")
+        rec.stop("2.000m")  # the others read
+
+
+def test_a_stop_without_fourth_moments_reads(tmp_path):
+    path = tmp_path / "old.h5"
+    write_by_hand(path)
+    with h5py.File(path, "a") as f:
+        f["stops"]["1.500m"]["m4_m4"] = np.full(f["stops"]["1.500m"]["count"].shape, np.nan)  # written, but empty
+    with Recording(path) as rec:
+        assert np.isnan(rec.stop("1.500m").stats.m4_m4).all()

@@ -67,11 +67,12 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
         s = stop.stats
         with np.errstate(invalid="ignore"):
             keep = (s.count >= max(2, min_count)) & np.isfinite(s.mean_m) & (s.mean_m > 0)
-        zero_shares.append(float((keep & ~(s.m2_m2 > 0)).sum()) / max(int(keep.sum()), 1))
-        _add_lag1_facts(facts, s, keep)
+        zero = keep & ~(s.m2_m2 > 0)  # kept pixels whose samples never changed
+        n_keep, n_zero = int(keep.sum()), int(zero.sum())
+        zero_shares.append(float(n_zero) / max(n_keep, 1))
+        _add_lag1_facts(facts, s, n_keep, n_zero)
         if positive_variance:
-            zero = keep & ~(s.m2_m2 > 0)
-            dropped_zero += int(zero.sum())
+            dropped_zero += n_zero
             keep &= ~zero
         rows.add(i, s, keep)
         sources.append(StopSource.of(stop, keep, cal, BRIGHTNESS_WINDOW_PX))
@@ -152,11 +153,12 @@ def _add_stop_facts(table: dict[str, list], stop: StopData) -> None:
     table["time_s"].append(float(np.mean(ts)) / 1000.0 if len(ts) and np.isfinite(ts).all() else np.nan)
 
 
-def _add_lag1_facts(table: dict[str, list], s, keep: np.ndarray) -> None:
+def _add_lag1_facts(table: dict[str, list], s, kept: int, constant: int) -> None:
+    """The stop's frame-independence facts (LAG1_FACTS), with its `kept` pixels and the `constant` ones among them."""
     num, den, pairs = pooled_lag1(s)
     table["lag1_num"].append(num)
     table["lag1_den"].append(den)
     table["lag1_pairs"].append(pairs)
     table["frames_repeated"].append(float(s.frames_repeated) if s.frames_repeated is not None else np.nan)
-    table["kept"].append(float(keep.sum()))
-    table["constant"].append(float((keep & ~(s.m2_m2 > 0)).sum()))
+    table["kept"].append(float(kept))
+    table["constant"].append(float(constant))
