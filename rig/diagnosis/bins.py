@@ -94,7 +94,12 @@ def pixel_inputs(d: ModelData, pred: Prediction) -> tuple:
             np.zeros(1) if k4 is None else np.ascontiguousarray(np.broadcast_to(k4, (len(d),)), dtype=float),
             k4 is not None, np.ascontiguousarray(d.kurtosis_usable),
             np.ascontiguousarray(np.nan_to_num(d.pixel_kurtosis), dtype=float), np.ascontiguousarray(d.n, dtype=float),
-            np.atleast_1d(np.asarray(pred.frame_mean_gain, dtype=float)))
+            per_row(pred.frame_mean_gain))
+
+
+def per_row(x: np.ndarray | float | None) -> np.ndarray:
+    """A prediction's term as the compiled passes take it: one value for every row (None: 1), or one a row."""
+    return np.ascontiguousarray(np.atleast_1d(np.asarray(1.0 if x is None else x, dtype=float)))
 
 
 @njit(cache=True, nogil=True)

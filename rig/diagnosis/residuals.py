@@ -20,7 +20,7 @@ from ..models import ModelData, ModelFit, Prediction
 from ..models.data import range_bin_index
 from ..models.group_sums import group_sums
 from ..models.order_statistics import quantiles
-from .bins import RADIUS_EDGES, BinComparison, BinSums, pixel_inputs, range_labels
+from .bins import RADIUS_EDGES, BinComparison, BinSums, per_row, pixel_inputs, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
 
@@ -211,15 +211,10 @@ class StopSums:
         out = np.zeros((int(c.stop.max()) + 1, 11))
         _stop_sums(np.ascontiguousarray(c.stop), np.ascontiguousarray(c.fill, dtype=float),
                    np.ascontiguousarray(c.n, dtype=float), np.ascontiguousarray(c.z_m, dtype=float),
-                   _per_row(pred.var_m2), _per_row(pred.common_inv2), _per_row(pred.frame_mean_gain),
-                   _per_row(pred.fill), out)
+                   per_row(pred.var_m2), per_row(pred.common_inv2), per_row(pred.frame_mean_gain),
+                   per_row(pred.fill), out)
         for key in np.flatnonzero(out[:, 0]).tolist():
             self.rows[key] = self.rows[key] + out[key] if key in self.rows else out[key].copy()
-
-
-def _per_row(x: np.ndarray | float | None) -> np.ndarray:
-    """A prediction's term as `_stop_sums` takes it: one value for every row (None: 1), or one a row."""
-    return np.ascontiguousarray(np.atleast_1d(np.asarray(1.0 if x is None else x, dtype=float)))
 
 
 @njit(cache=True, nogil=True)
