@@ -390,7 +390,9 @@ def load_samples(recording: Any, *, min_count: int = 2, positive_variance: bool 
 def _true_range(z_m, v_m2, stop, m2_m2, nu, out):  # pragma: no cover - compiled
     """`ModelData.z0_m` into `out`: Z0 = Z / (1 + v / Z^2) (eq. dist_to_disp to second order), v the neighbours'
     variance `v_m2` (m^2) or, where it is NaN, the stop's pooled variance sum M2 / sum nu."""
-    stops = stop.max() + 1
+    stops = 0
+    for i in range(stop.size):  # a loop, not stop.max(): numba's reductions took a second to compile
+        stops = max(stops, stop[i] + 1)
     sum_m2, sum_nu = np.zeros(stops), np.zeros(stops)
     for i in range(z_m.size):  # in row order, as numpy's bincount adds
         sum_m2[stop[i]] += m2_m2[i]

@@ -45,53 +45,65 @@ def median(x: np.ndarray) -> float:
 
 
 def _order_statistics(x: np.ndarray, ranks: np.ndarray) -> np.ndarray | None:
-    """The values of rank `ranks` (0: the smallest) of `x`, or None where numpy should do it."""
+    """The values of rank `ranks` (0: the smallest) of `x`, or None where numpy should do it (module docstring):
+    data with NaN, or whose wanted bins hold more than half of the values. The passes over every value are compiled
+    loops; the few steps on the bins are numpy's (numba's own partition and search took 16 s to compile)."""
     if x.size < SMALL or x.dtype.kind != "f":
         return None
+    lo, hi, finite = _value_range(x)
+    if not finite:
+        return None
+    if not hi > lo:  # every value the same
+        return np.full(len(ranks), lo)
+    scale = BINS / (hi - lo)
+    counts = np.zeros(BINS, np.int64)
+    _count_bins(x, lo, scale, counts)
+    start = np.concatenate([[0], np.cumsum(counts)])
+    bin_of = np.searchsorted(start, ranks, side="right") - 1  # each rank's bin
+    wanted = np.unique(bin_of)
+    if counts[wanted].sum() > x.size // 2:
+        return None
+    slot = np.full(BINS, -1, np.int64)  # where each wanted bin's values go in `kept`
+    slot[wanted] = np.concatenate([[0], np.cumsum(counts[wanted])[:-1]])
+    kept = np.empty(int(counts[wanted].sum()), x.dtype)
+    _gather_bins(x, lo, scale, slot.copy(), kept)
     out = np.empty(len(ranks))
-    return out if _select(x, np.ascontiguousarray(ranks), out) else None
+    for j, (b, rank) in enumerate(zip(bin_of.tolist(), np.asarray(ranks).tolist())):
+        k = rank - int(start[b])
+        out[j] = np.partition(kept[slot[b]:slot[b] + counts[b]], k)[k]
+    return out
 
 
 @njit(cache=True, nogil=True)
-def _select(x, ranks, out):  # pragma: no cover - compiled
-    """Into `out`, the value of each rank in `ranks` (module docstring); False, leaving the work to numpy, for data
-    with NaN or whose wanted bins hold more than half of the values."""
-    n = x.size
+def _value_range(x):  # pragma: no cover - compiled
+    """The least and greatest of `x` (float64), and whether every value is a number (no NaN)."""
     lo, hi = np.inf, -np.inf
-    for i in range(n):
+    for i in range(x.size):
         v = np.float64(x[i])
         if v != v:
-            return False
+            return lo, hi, False
         lo, hi = min(lo, v), max(hi, v)
-    if not hi > lo:  # every value the same
-        out[:] = lo
-        return True
-    scale = BINS / (hi - lo)
-    counts = np.zeros(BINS, np.int64)
-    for i in range(n):  # (x - lo) * scale never decreases as x grows: the bins are in order
-        counts[min(np.int64((np.float64(x[i]) - lo) * scale), BINS - 1)] += 1
-    start = np.zeros(BINS + 1, np.int64)
-    for b in range(BINS):
-        start[b + 1] = start[b] + counts[b]
-    bin_of = np.searchsorted(start, ranks, side="right") - 1  # each rank's bin
-    slot = np.full(BINS, -1, np.int64)  # where each wanted bin's values go in `kept`
-    at = np.zeros(BINS, np.int64)
-    kept_size = 0
-    for b in bin_of:
-        if slot[b] < 0:
-            slot[b] = kept_size
-            at[b] = kept_size
-            kept_size += counts[b]
-    if kept_size > n // 2:
-        return False
-    kept = np.empty(kept_size, x.dtype)
-    for i in range(n):
-        b = min(np.int64((np.float64(x[i]) - lo) * scale), BINS - 1)
-        if slot[b] >= 0:
+    return lo, hi, True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bin(v, lo, scale):  # pragma: no cover - compiled
+    """A value's bin: (v - lo) * scale never decreases as v grows, so a bin's values are all at least the lower bins'."""
+    return min(np.int64((np.float64(v) - lo) * scale), BINS - 1)
+
+
+@njit(cache=True, nogil=True)
+def _count_bins(x, lo, scale, counts):  # pragma: no cover - compiled
+    """How many values of `x` fall in each of the BINS bins (`_bin`)."""
+    for i in range(x.size):
+        counts[_bin(x[i], lo, scale)] += 1
+
+
+@njit(cache=True, nogil=True)
+def _gather_bins(x, lo, scale, at, kept):  # pragma: no cover - compiled
+    """Each value of a wanted bin (`at[b]` >= 0: its next place in `kept`) into `kept`."""
+    for i in range(x.size):
+        b = _bin(x[i], lo, scale)
+        if at[b] >= 0:
             kept[at[b]] = x[i]
             at[b] += 1
-    for j in range(ranks.size):
-        b = bin_of[j]
-        k = ranks[j] - start[b]
-        out[j] = np.partition(kept[slot[b]:slot[b] + counts[b]], k)[k]
-    return True
