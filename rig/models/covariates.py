@@ -354,7 +354,7 @@ def covariate_rows(name: str, d) -> np.ndarray:
     if name in ("x_norm", "y_norm", "rho2", "cos_inc"):  # compiled passes over the positions, stop by stop for the plane
         what = {"x_norm": X_NORM, "y_norm": Y_NORM, "rho2": RHO2, "cos_inc": COS_INC}[name]
         out = np.empty(len(d))
-        for s, rows in _rows_by_stop(d) if what == COS_INC else [(0, slice(None))]:
+        for s, rows in rows_by_stop(d) if what == COS_INC else [(0, slice(None))]:
             normal = np.asarray(sources[s].normal, dtype=np.float64) if what == COS_INC else np.zeros(3)
             with _into(out, rows) as part:
                 _position_rows(np.ascontiguousarray(d.u_px[rows]), np.ascontiguousarray(d.v_px[rows]),
@@ -362,7 +362,7 @@ def covariate_rows(name: str, d) -> np.ndarray:
         return out
     if name in ("ir", "ambient_ratio"):
         out = np.full(len(d), np.nan)
-        for s, rows in _rows_by_stop(d):
+        for s, rows in rows_by_stop(d):
             image = sources[s].ir_dn if name == "ir" else sources[s].ambient
             if image is not None:  # the nearest pixel (grouped data's nodes sit between pixels)
                 with _into(out, rows) as part:
@@ -373,7 +373,7 @@ def covariate_rows(name: str, d) -> np.ndarray:
                 "projector_on": lambda src, rows: np.full(_size(rows, len(d)), src.projector_on)}
     if name not in per_stop:
         raise KeyError(f"no covariate named {name!r}")
-    parts = [(rows, per_stop[name](sources[s], rows)) for s, rows in _rows_by_stop(d)]
+    parts = [(rows, per_stop[name](sources[s], rows)) for s, rows in rows_by_stop(d)]
     out = np.empty(len(d), dtype=bool if name == "projector_on" else np.float64)
     for rows, values in parts:
         out[rows] = values
@@ -395,7 +395,7 @@ def _size(rows, total: int) -> int:
     return len(range(*rows.indices(total))) if isinstance(rows, slice) else len(rows)
 
 
-def _rows_by_stop(d):
+def rows_by_stop(d):
     """(stop index, its rows) for every stop in `d`: slices when the rows come stop by stop."""
     slices = d.stop_slices()
     if slices is not None:

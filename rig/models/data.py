@@ -28,7 +28,7 @@ from numba import njit
 
 from protocols.recording import CameraCalibration
 
-from .covariates import StopSource, covariate_rows
+from .covariates import StopSource, covariate_rows, rows_by_stop
 from .loading import BRIGHTNESS_WINDOW_PX, LAG1_FACTS, read_rows
 from .order_statistics import median
 from .rounding import grid_offset
@@ -325,10 +325,7 @@ class ModelData(ShapeStatistics):
     def median_range_by_stop(self) -> dict[int, float]:
         """Each stop's median measured range, m (stop index -> median of its pixels' `z_m`): where a per-stop
         statistic sits along the range (the frame-mean check, the plots); made once for the data."""
-        slices = self.stop_slices()
-        rows = ([(int(self.stop[sl.start]), sl) for sl in slices] if slices is not None
-                else [(int(s), self.stop == s) for s in np.unique(self.stop)])
-        return {s: median(self.z_m[r]) for s, r in rows}  # np.median's value (rig.models.order_statistics)
+        return {s: median(self.z_m[r]) for s, r in rows_by_stop(self)}  # np.median's value (rig.models.order_statistics)
 
     @cached_property
     def fill_by_stop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

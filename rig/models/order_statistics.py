@@ -61,11 +61,12 @@ def _order_statistics(x: np.ndarray, ranks: np.ndarray) -> np.ndarray | None:
     start = np.concatenate([[0], np.cumsum(counts)])
     bin_of = np.searchsorted(start, ranks, side="right") - 1  # each rank's bin
     wanted = np.unique(bin_of)
-    if counts[wanted].sum() > x.size // 2:
+    ends = np.cumsum(counts[wanted])  # the wanted bins' values, one after another in `kept`
+    if ends[-1] > x.size // 2:
         return None
     slot = np.full(BINS, -1, np.int64)  # where each wanted bin's values go in `kept`
-    slot[wanted] = np.concatenate([[0], np.cumsum(counts[wanted])[:-1]])
-    kept = np.empty(int(counts[wanted].sum()), x.dtype)
+    slot[wanted] = ends - counts[wanted]
+    kept = np.empty(int(ends[-1]), x.dtype)
     _gather_bins(x, lo, scale, slot.copy(), kept)
     out = np.empty(len(ranks))
     for j, (b, rank) in enumerate(zip(bin_of.tolist(), np.asarray(ranks).tolist())):
