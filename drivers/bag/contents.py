@@ -20,6 +20,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..errors import FolderImportError
+from .ros1 import Ros1Bag
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 IMAGE = "sensor_msgs/msg/Image"
@@ -80,15 +81,18 @@ class BagFacts:
 
 
 def _reader(path: Path):
+    """The bag opened for reading (a context manager): a ROS 1 bag with its message definitions parsed once per
+    process (drivers/bag/ros1.py), a ROS 2 bag with rosbags' AnyReader."""
     try:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError:  # pragma: no cover - a dependency of rig
         raise FolderImportError("reading bags needs rosbags; pip install rosbags") from None
-    # a ROS 1 bag carries its messages' definitions, and rosbags reads them from it; the ROS 2 Humble store (0.45 s of
+    # a ROS 1 bag carries its messages' definitions, and they are read from it; the ROS 2 Humble store (0.45 s of
     # imports: each distro's store builds on the one before) is only for a rosbag2 that has none (rosbags' AnyReader)
-    ros1 = Path(path).suffix == ".bag"
-    return AnyReader([path], default_typestore=None if ros1 else get_typestore(Stores.ROS2_HUMBLE))
+    if Path(path).suffix == ".bag":
+        return Ros1Bag(path)
+    return AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
 
 
 def _field(msg: Any, name: str) -> Any:
