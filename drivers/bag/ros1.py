@@ -59,12 +59,13 @@ class Ros1Bag:
 
         reader = Reader(self.path)
         reader.open()
+        connections = list(reader.connections)
         try:
-            self._store = _typestore(self.path, list(reader.connections))
+            self._store = _typestore(self.path, connections)
         except BaseException:
             reader.close()
             raise
-        self._reader, self.connections = reader, list(reader.connections)
+        self._reader, self.connections = reader, connections
         return self
 
     def __exit__(self, *exc: object) -> bool:
