@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors
+from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors, with_exact_loglik
 from ..models.independence import Independence, independence
 from ..models.progress import ProgressCounter, ProgressFn
 from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
@@ -247,7 +247,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
         after = headline(best.fit, d)
         if after.misfit > (1 - MATERIAL_FRACTION) * current.headline.misfit:
             break  # significant, but it leaves what is wrong where it was: not the missing effect
-        best.fit = with_errors(best.fit, d)
+        best.fit = with_exact_loglik(with_errors(best.fit, d), d)  # a candidate's was its grouped nodes' (candidates)
         steps.append(Step(best.fit, after, best, equivalent))
         counter.more_may_come = not after.within_noise and (len(steps) <= max_steps or explain)
     unexplained = None

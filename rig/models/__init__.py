@@ -28,7 +28,7 @@ from .component import EFFECTS, BaseModel, Component, Effect, EffectFileError, r
 from .composition import Model
 from .data import ModelData, load_samples
 from .empirical import empirical
-from .optimise import fit_model, with_errors
+from .optimise import fit_model, with_errors, with_exact_loglik
 from .paper_fit import fit_power_law
 from .parameters import Param
 from .parse import parse_model
@@ -39,7 +39,7 @@ from .user_effects import Covariates, effect, load_effects
 __all__ = [
     "BASES", "Base", "active", "fixed_lambda", "passive", "power_law", "BaseModel", "Component", "Param", "Model",
     "parse_model", "PowerLawEstimate", "power_law_mle", "ModelData", "load_samples", "EFFECTS", "Effect", "register",
-    "fit_model", "with_errors", "fit_power_law", "EffectStage", "Prediction", "ModelFit", "likelihood_ratio",
+    "fit_model", "with_errors", "with_exact_loglik", "fit_power_law", "EffectStage", "Prediction", "ModelFit", "likelihood_ratio",
     "Catalogue", "empirical", "Covariates", "EffectFileError", "effect", "load_effects",
 ]
 

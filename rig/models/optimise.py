@@ -306,6 +306,14 @@ def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:
     return replace(fit, errors=se, covariance=cov, error_notes=notes)
 
 
+def with_exact_loglik(fit: ModelFit, d: ModelData) -> ModelFit:
+    """`fit` with the log-likelihood of every pixel of `d` where it was fitted on grouped nodes and reported theirs
+    (`exact_loglik=False`: a diagnosis's candidates); the same value `fit_model` reports by default."""
+    if fit_data(fit.model, d) is d:
+        return fit
+    return replace(fit, loglik=fit.model.loglik(fit.values, d))
+
+
 def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelData,
                      names: list[str]) -> tuple[dict[str, float], np.ndarray | None, dict[str, str]]:
     """Cramer-Rao standard errors from the inverse of the observed information (minus the Hessian), the covariance,

@@ -23,17 +23,19 @@ from .optimise import fit_data
 from .result import ModelFit
 
 def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None = None, *, jobs: int = 1,
-               hold: frozenset[str] = frozenset(), done: Callable[[int], None] | None = None) -> list[ModelFit | ValueError]:
+               hold: frozenset[str] = frozenset(), done: Callable[[int], None] | None = None,
+               exact_loglik: bool = True) -> list[ModelFit | ValueError]:
     """Each model fitted (without standard errors) from `start`, the parameters in `hold` held there, in order; a
     model that cannot be fitted gives its ValueError (an `EffectFileError` is raised). `done(i)` is called as
-    model i finishes. Effects that keep state (an empirical shape's knots) must have it before the call."""
+    model i finishes. Effects that keep state (an empirical shape's knots) must have it before the call.
+    `exact_loglik` False: a model fitted on grouped nodes reports their log-likelihood (`fit_model`)."""
     if jobs > 1 and len(models) > 1:
         for m in models:
             fit_data(m, d)  # grouped nodes made here, once, not in every worker
 
     def one(i: int) -> object:
         # the fit goes back without its effects (the parent puts its own model back: a user's effects may not pickle)
-        r = _fit(models[i], d, start, hold)
+        r = _fit(models[i], d, start, hold, exact_loglik)
         return r if isinstance(r, Exception) else replace(r, model=Model(models[i].base))
 
     results = forked_map(one, len(models), jobs=jobs, done=done)
@@ -81,11 +83,12 @@ def _map_in_worker(i: int) -> tuple[int, object]:
     return i, _MAP(i)  # type: ignore[misc]
 
 
-def _fit(m: Model, d: ModelData, start: dict[str, float] | None, hold: frozenset[str]) -> ModelFit | Exception:
+def _fit(m: Model, d: ModelData, start: dict[str, float] | None, hold: frozenset[str],
+         exact_loglik: bool) -> ModelFit | Exception:
     from .user_effects import EffectFileError
 
     try:
-        return m.fit(d, start=start, errors=False, hold=hold)
+        return m.fit(d, start=start, errors=False, hold=hold, exact_loglik=exact_loglik)
     except EffectFileError as e:
         return e
     except ValueError as e:
