@@ -15,10 +15,10 @@ per-frame series, the depth unit) instead of fitting it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from ..models import Catalogue, Effect, Model, ModelData, ModelFit, likelihood_ratio
-from ..models.optimise import fit_data
+from ..models.optimise import loglik_on_nodes_of
 from ..models.parallel import fit_models
 from ..models.progress import ProgressCounter
 
@@ -72,8 +72,7 @@ def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catal
             if not_fitted is not None:
                 not_fitted.append((e.name, str(f) or type(f).__name__))
             continue
-        nodes = fit_data(m, d)  # what the candidate was fitted on, and whose log-likelihood it reports
-        ref = base if nodes is d else replace(base, loglik=model.loglik(base.values, nodes))
+        ref = loglik_on_nodes_of(base, m, d)  # on what the candidate was fitted on, whose log-likelihood it reports
         stat, df, p = likelihood_ratio(ref, f)
         out.append(Candidate(e, f, f.bic - ref.bic, stat, df, p))
     out.sort(key=lambda c: c.dbic)

@@ -306,6 +306,13 @@ def with_errors(fit: ModelFit, d: ModelData) -> ModelFit:
     return replace(fit, errors=se, covariance=cov, error_notes=notes)
 
 
+def loglik_on_nodes_of(fit: ModelFit, model: ComposedModel, d: ModelData) -> ModelFit:
+    """`fit` with its log-likelihood on what `model` is fitted on (`fit_data`: the grouped nodes of `d`, or `d` itself):
+    what a fit of `model` that reports its nodes' log-likelihood (`exact_loglik=False`) is compared with."""
+    nodes = fit_data(model, d)
+    return fit if nodes is d else replace(fit, loglik=fit.model.loglik(fit.values, nodes))
+
+
 def with_exact_loglik(fit: ModelFit, d: ModelData) -> ModelFit:
     """`fit` with the log-likelihood of every pixel of `d` where it was fitted on grouped nodes and reported theirs
     (`exact_loglik=False`: a diagnosis's candidates); the same value `fit_model` reports by default."""
