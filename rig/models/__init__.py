@@ -39,7 +39,8 @@ from .user_effects import Covariates, effect, load_effects
 __all__ = [
     "BASES", "Base", "active", "fixed_lambda", "passive", "power_law", "BaseModel", "Component", "Param", "Model",
     "parse_model", "PowerLawEstimate", "power_law_mle", "ModelData", "load_samples", "EFFECTS", "Effect", "register",
-    "fit_model", "with_errors", "with_exact_loglik", "fit_power_law", "EffectStage", "Prediction", "ModelFit", "likelihood_ratio",
+    "fit_model", "with_errors", "with_exact_loglik", "fit_power_law", "EffectStage", "Prediction", "ModelFit",
+    "likelihood_ratio",
     "Catalogue", "empirical", "Covariates", "EffectFileError", "effect", "load_effects",
 ]
 
