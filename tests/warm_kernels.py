@@ -6,8 +6,8 @@ workers, and the commands their tests start, each compiled the same ~20 kernels 
 the streaming statistics) and a diagnosis of a coarse depth unit (the likelihood's, the range transform's, the
 outlier mixture's, rounding's, the bins'); the tests then load them from the cache. Not compiled here: grouping's
 (it needs 100,000 pixel-stops), which only tests/test_grouping.py uses. ~15 s of CPU from a fresh clone at first,
-22.7 s on 2026-11-27 (the loading's and the headline's passes compiled since, in a slow half hour), ~6 s when
-everything is compiled already.
+17-32 s on 2026-11-27 (the loading's and the headline's passes compiled since; the spread is the machine's stretches
+of the day), ~2 s when everything is compiled already.
 """
 
 from __future__ import annotations
