@@ -14,8 +14,10 @@ import os
 # One worker a core (pytest_xdist_auto_num_workers below): one BLAS thread each (rig/blas_threads.py), set before
 # numpy is imported; the workers and the commands the tests start inherit it.
 from rig.blas_threads import one_blas_thread  # noqa: E402
+from rig.process_gc import collect_less_often, freeze_before_exit  # noqa: E402
 
 one_blas_thread()
+collect_less_often()  # as the `rig` program does (rig/process_gc.py): the workers' collector runs less often
 
 import pytest
 
@@ -103,12 +105,9 @@ def pytest_collection_modifyitems(config, items):
 
 
 def pytest_unconfigure(config):
-    """The session is over (in each xdist worker and in the controller): what it made is frozen (`gc.freeze`), so
-    the interpreter's shutdown collections pass over nothing; with numba loaded they cost 0.4-0.6 s of CPU a
-    process (`rig.cli.entry`, which the `rig` program runs, does the same)."""
-    import gc
-
-    gc.freeze()
+    """The session is over (in each xdist worker and in the controller): what it made is frozen, so the
+    interpreter's shutdown collections pass over nothing (rig/process_gc.py)."""
+    freeze_before_exit()
 
 
 def pytest_xdist_auto_num_workers(config):

@@ -20,6 +20,25 @@ def test_console_script_is_installed_and_runs():
         assert cmd in out
 
 
+def test_the_rig_program_leaves_the_collector_frozen_for_the_shutdown_also_after_an_error(monkeypatch, capsys):
+    """`rig.cli.entry` (what the console script runs) freezes every object when `main` ends, however it ends
+    (argparse's exit here), so the interpreter's shutdown collections pass over none (rig/process_gc.py)."""
+    import gc
+
+    from rig.cli import entry
+    from rig.process_gc import YOUNG_THRESHOLD
+
+    monkeypatch.setattr(sys, "argv", ["rig", "fit", "--no-such-option"])
+    gc.unfreeze()
+    try:
+        with pytest.raises(SystemExit):
+            entry()
+        assert gc.get_freeze_count() > 1000 and gc.get_threshold()[0] == YOUNG_THRESHOLD
+    finally:
+        gc.unfreeze()
+    assert "rig fit: error: the following arguments are required: recording" in capsys.readouterr().err
+
+
 def test_run_then_fit(tmp_path, capsys):
     out = tmp_path / "a.h5"
     assert main(["run", "--protocol", "perpendicular", "--frames", "20", "--camera", "fake:width=48,depth_unit_mm=0.05",

@@ -9,7 +9,6 @@ module registered here) with its arguments and a `cmd_*` function.
 from __future__ import annotations
 
 import argparse
-import gc
 import os
 import signal
 import sys
@@ -17,6 +16,7 @@ import threading
 from typing import TextIO
 
 from ..blas_threads import one_blas_thread
+from ..process_gc import collect_less_often, freeze_before_exit
 
 one_blas_thread()  # before anything imports numpy (rig/blas_threads.py says why)
 
@@ -72,20 +72,13 @@ def paper_windows_main(argv: list[str]) -> int:
 
 def entry() -> int:
     """The `rig` program (pyproject.toml's [project.scripts]): `main` on the process's own arguments, with Python's
-    cyclic garbage collector set for a process that ends when the command does.
-
-    - Its first generation is collected every 20,000 new objects, not 700: the imports and numba's first call make
-      hundreds of thousands of long-lived objects, and the default's 280 collections cost `rig fit` of the sweep
-      0.20 s of CPU (0.10 s at 20,000).
-    - Everything is frozen (`gc.freeze`) before the interpreter exits, so the collections of its shutdown pass over
-      nothing: over numba's objects they cost 0.4-0.6 s of CPU after every command (0.05-0.08 s frozen). Objects
-      are still freed as their references go; only a cycle left at exit is left to the operating system.
-    """
-    gc.set_threshold(20_000, *gc.get_threshold()[1:])
+    collector set for a process that ends when the command does (`rig.process_gc`: collected less often, and
+    frozen before the interpreter's shutdown, whose collections over numba's objects cost 0.4-0.6 s of CPU)."""
+    collect_less_often()
     try:
         return main()
     finally:
-        gc.freeze()
+        freeze_before_exit()
 
 
 def main(argv: list[str] | None = None) -> int:
