@@ -20,15 +20,18 @@ def test_console_script_is_installed_and_runs():
         assert cmd in out
 
 
-def test_the_rig_program_leaves_the_collector_frozen_for_the_shutdown_also_after_an_error(monkeypatch, capsys):
-    """`rig.cli.entry` (what the console script runs) freezes every object when `main` ends, however it ends
-    (argparse's exit here), so the interpreter's shutdown collections pass over none (rig/process_gc.py)."""
+def test_the_rig_program_sets_the_collector_and_leaves_it_frozen_also_after_an_error(monkeypatch, capsys):
+    """`rig.cli.entry` (what the console script runs) collects the first generation every YOUNG_THRESHOLD objects
+    and freezes every object when `main` ends, however it ends (argparse's exit here), so the interpreter's shutdown
+    collections pass over none (rig/process_gc.py)."""
     import gc
 
     from rig.cli import entry
     from rig.process_gc import YOUNG_THRESHOLD
 
-    monkeypatch.setattr(sys, "argv", ["rig", "fit", "--no-such-option"])
+    monkeypatch.setattr(sys, "argv", ["rig", "fit"])
+    before = gc.get_threshold()
+    gc.set_threshold(700, *before[1:])  # Python's own, which the test session has changed
     gc.unfreeze()
     try:
         with pytest.raises(SystemExit):
@@ -36,6 +39,7 @@ def test_the_rig_program_leaves_the_collector_frozen_for_the_shutdown_also_after
         assert gc.get_freeze_count() > 1000 and gc.get_threshold()[0] == YOUNG_THRESHOLD
     finally:
         gc.unfreeze()
+        gc.set_threshold(*before)
     assert "rig fit: error: the following arguments are required: recording" in capsys.readouterr().err
 
 
