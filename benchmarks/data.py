@@ -32,9 +32,14 @@ FULL = Size(848, 480, 300, 1100)
 QUICK = Size(212, 120, 30, 110)
 
 
+def sweep_path(workdir: Path, size: Size) -> Path:
+    """Where the sweep of `size` is (or will be) recorded in `workdir`."""
+    return workdir / f"sweep-{size.width}x{size.height}-{size.frames}.h5"
+
+
 def sweep(workdir: Path, size: Size) -> tuple[Path, float, float]:
     """The sweep (recorded now, or kept from an earlier run with --keep): (path, CPU s, wall s) of `rig run`."""
-    path = workdir / f"sweep-{size.width}x{size.height}-{size.frames}.h5"
+    path = sweep_path(workdir, size)
     if path.exists():
         return path, float("nan"), float("nan")
     cpu, _, wall, _ = run_measured([RIG, "-q", "run", "--protocol", "perpendicular", "--camera",

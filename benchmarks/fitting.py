@@ -14,6 +14,16 @@ from .data import RIG
 from .figures import Figure, run_measured
 
 THREE_EFFECTS = "active+noise_floor+slant_range+outliers"
+#: s of CPU the paper's script took on the sweep on the machine issue 30's targets were stated on (the table of
+#: 2026-11-25 in docs/performance.md): a target of T s there is T / 1.10 times the script in the same run here
+ISSUE_30_SCRIPT_S = 1.10
+
+
+def issue_30_target(target_s: float, ours_s: float, script_s: float) -> tuple[str, bool]:
+    """Issue 30's target of `target_s` seconds, in the words of the table and met or not: `ours_s` against the paper's
+    script on the sweep in the same run (`script_s`), as the issue's seconds scale to this machine."""
+    limit = target_s / ISSUE_30_SCRIPT_S
+    return f"< {target_s:g} s (issue 30; the script {ISSUE_30_SCRIPT_S:.2f} s): < {limit:.2f}x", ours_s / script_s < limit
 
 
 def commands(sweep: Path, workdir: Path) -> list[Figure]:
@@ -29,7 +39,7 @@ def commands(sweep: Path, workdir: Path) -> list[Figure]:
     k, lam = fit["values"]["k"], fit["values"]["lambda"]
     agree = max(abs(k / k_script - 1), abs(lam / lam_script - 1))
     out = [
-        Figure("rig fit (power law) on the sweep, CPU", fit_cpu, base_cpu, "s", "< 2 s", fit_cpu < 2.0,
+        Figure("rig fit (power law) on the sweep, CPU", fit_cpu, base_cpu, "s", *issue_30_target(2.0, fit_cpu, base_cpu),
                "the paper's likelihood in a 30-line script", note=f"wall {fit_wall:.1f} s; k and lambda agree to {agree:.1e}",
                extra={"k": k, "lambda": lam, "k_script": k_script, "lambda_script": lam_script}),
         Figure("rig fit (power law) on the sweep, peak memory", fit_mb, base_mb, "MB", "< 500 MB", fit_mb < 500.0,
@@ -37,7 +47,7 @@ def commands(sweep: Path, workdir: Path) -> list[Figure]:
     ]
     model_cpu, _, model_wall, _ = run_measured([RIG, "-q", "fit", str(sweep), "--model", THREE_EFFECTS, "--no-held-out"])
     out.append(Figure(f"rig fit --model {THREE_EFFECTS} --no-held-out on the sweep, CPU", model_cpu, base_cpu, "s",
-                      "< 10 s", model_cpu < 10.0, "the paper's script", note=f"wall {model_wall:.1f} s"))
+                      *issue_30_target(10.0, model_cpu, base_cpu), "the paper's script", note=f"wall {model_wall:.1f} s"))
     # as a user runs it: with the held-out score (eleven refits, one stop left out each, in --jobs processes)
     held_cpu, held_mb, held_wall, _ = run_measured([RIG, "-q", "fit", str(sweep), "--model", THREE_EFFECTS])
     out.append(Figure(f"rig fit --model {THREE_EFFECTS} on the sweep (with its held-out score), wall", held_wall,
@@ -46,7 +56,7 @@ def commands(sweep: Path, workdir: Path) -> list[Figure]:
     with tempfile.TemporaryDirectory() as tmp:
         diag_cpu, diag_mb, diag_wall, _ = run_measured([RIG, "-q", "diagnose", str(sweep), "--out", tmp])
     out.append(Figure("rig diagnose (every candidate) on the sweep, CPU over its processes", diag_cpu, base_cpu, "s",
-                      "< 15 s (issue 30)", diag_cpu < 15.0, "the paper's script",
+                      *issue_30_target(15.0, diag_cpu, base_cpu), "the paper's script",
                       note=f"wall {diag_wall:.1f} s (--jobs: one per core); peak {diag_mb:.0f} MB"))
     return out
 
@@ -79,23 +89,28 @@ def blind_table(demo: Path, workdir: Path, seeds: int) -> list[Figure]:
                    extra={"within_noise": within, "trials": len(trials), "rows": {k: sum(v) for k, v in rows.items()}})]
 
 
-def small(demo: Path, workdir: Path) -> list[Figure]:
+def small(demo: Path, workdir: Path, sweep: Path | None = None) -> list[Figure]:
     """What the operator waits for on the demo's 106x60 recording (issue 30's targets, CPU s): `rig diagnose`
     (one process, as the demo runs it) and `rig fit --model` with an empirical term as a user runs it (with its
-    held-out score), each against the paper's script on the same file."""
+    held-out score). Against the paper's script on the sweep when there is one (`sweep`), to which issue 30's
+    seconds scale (`issue_30_target`); otherwise against the script on the demo, and the targets in plain seconds."""
     script = workdir / "paper_fit.py"
     script.write_text(PAPER_SCRIPT)
-    base_cpu, _, _, _ = run_measured([sys.executable, str(script), str(demo)])
+    base_cpu, _, _, _ = run_measured([sys.executable, str(script), str(sweep or demo)])
+    base_name = "the paper's script on the sweep" if sweep else "the paper's script on it"
+
+    def target(ours: float) -> tuple[str, bool]:
+        return issue_30_target(5.0, ours, base_cpu) if sweep else ("< 5 s", ours < 5.0)
+
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         diag_cpu, diag_mb, diag_wall, _ = run_measured([RIG, "-q", "diagnose", str(demo), "--jobs", "1", "--out", tmp])
-    out.append(Figure("rig diagnose on the demo's 106x60 recording (--jobs 1), CPU", diag_cpu, base_cpu, "s", "< 5 s",
-                      diag_cpu < 5.0, "the paper's script on it", note=f"wall {diag_wall:.1f} s; peak {diag_mb:.0f} MB"))
+    out.append(Figure("rig diagnose on the demo's 106x60 recording (--jobs 1), CPU", diag_cpu, base_cpu, "s",
+                      *target(diag_cpu), base_name, note=f"wall {diag_wall:.1f} s; peak {diag_mb:.0f} MB"))
     model = "active+noise_floor+empirical(radius)"
     fit_cpu, _, fit_wall, _ = run_measured([RIG, "-q", "fit", str(demo), "--model", model])
     out.append(Figure(f"rig fit --model {model} on the demo's recording (with its held-out score), CPU", fit_cpu,
-                      base_cpu, "s", "< 5 s", fit_cpu < 5.0, "the paper's script on it",
-                      note=f"wall {fit_wall:.1f} s, over the processes"))
+                      base_cpu, "s", *target(fit_cpu), base_name, note=f"wall {fit_wall:.1f} s, over the processes"))
     return out
 
 
