@@ -91,7 +91,7 @@ def test_held_out_score_prefers_the_true_model(tmp_path, capsys):
     out = tmp_path / "x.h5"
     assert main(["simulate", "--seed", "4", "--effect", "read_noise", "--width", "53", str(out)]) == 0
     capsys.readouterr()
-    assert main(["compare", str(out), "--models", "active,active+read_noise"]) == 0
+    assert main(["compare", str(out), "--models", "active,active+read_noise", "--jobs", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
     nll = [float(line.split()[-1]) for line in lines if line.startswith("active")]
     assert nll[1] < nll[0]
