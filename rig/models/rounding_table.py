@@ -41,6 +41,10 @@ F_GRID = np.linspace(0.0, 0.5, 101)
 K_EXACT = 32
 #: resolution of the average over where the true mean sits (units of q)
 PHI_STEP = 0.002
+#: the most K = 0's subtraction (P(T = 0) less P(all equal)) may amplify the FFT's rounding; beyond it the kept
+#: pixels at K = 0 are, but for a fraction under 1 / MAX_CANCELLATION, those with one sample a level up and one a
+#: level down, whose s2 is 2 / (n - 1) exactly
+MAX_CANCELLATION = 1e6
 
 
 def build(s: float, n: int) -> np.ndarray:
@@ -60,11 +64,15 @@ def build(s: float, n: int) -> np.ndarray:
     at = K + n * top  # coefficient index of z^K (the polynomial starts at z^(-top n))
     prob = np.fft.irfft(gen_n1 * gen, size, axis=0)[at].sum(axis=1)
     q_sum = n * np.fft.irfft(gen_n1 * np.fft.rfft(p * k**2, size, axis=0), size, axis=0)[at].sum(axis=1)
+    with_all_equal = prob[0]
     prob[0] -= float(np.sum(p[top] ** n))  # all samples on level 0: s2 = 0, not kept
     with np.errstate(divide="ignore", invalid="ignore"):
         out = (q_sum / prob - K**2 / n) / (n - 1)
-    if not (prob[0] > 1e-12 * prob.max() and np.isfinite(out[0])):
-        out[0] = 2.0 / (n - 1)  # K = 0 kept needs one sample each side: the least s2 that can be
+    if not (prob[0] * MAX_CANCELLATION > with_all_equal and np.isfinite(out[0])):
+        # K = 0 kept needs one sample each side; when that is rarer than the subtraction's rounding allows, it is
+        # one sample a level up and one a level down (s2 = 2 / (n - 1), the least there can be) but for a
+        # fraction of about n^2 p(+1) p(-1) / 4 < 1 / MAX_CANCELLATION
+        out[0] = 2.0 / (n - 1)
     return out
 
 
