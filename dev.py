@@ -1,19 +1,28 @@
 #!/usr/bin/env python3
-"""Set up and run rig from a fresh clone: `python3 dev.py demo` or `python3 dev.py test`
-(`python3 dev.py test --quick`: the inner loop, under a minute: no real-time, trial or slow tests).
+"""Set up and run rig from a fresh clone: `python3 dev.py demo` or `python3 dev.py test`.
 
 Creates .venv/ beside this file (once), installs rig into it (again whenever pyproject.toml
 changes), then runs the demo or the test suite. Needs only Python 3.11+.
-Extra arguments are passed on: `python3 dev.py demo --full-resolution`, `python3 dev.py test -k fit`.
+
+  python3 dev.py test             the whole suite, then its numeric tests again on other floating-point paths,
+                                  and the CPU each part took
+  python3 dev.py test --quick     the inner loop, under a minute: the tests not marked slow
+  python3 dev.py test --fp-paths  only the numeric tests, on other floating-point paths (docs/testing.md)
+
+Extra arguments are passed on to the demo or to pytest: `python3 dev.py demo --full-resolution`,
+`python3 dev.py test -k fit`.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import platform
+import resource
 import shutil
 import subprocess
 import sys
+import time
 import venv
 from pathlib import Path
 
@@ -80,21 +89,86 @@ def child_env() -> dict[str, str]:
     return env
 
 
+def other_fp_env(python: Path) -> dict[str, str]:
+    """Settings that move this machine's floating point onto other code paths, as another processor would take
+    them (docs/testing.md): numba compiles for a generic CPU of the architecture (no FMA, no AVX), numpy's SIMD
+    loops beyond its baseline are turned off (its transcendental functions then call the C library's), glibc's
+    libm takes its variants without FMA and AVX2 (x86-64), and OpenBLAS its kernels for an older core. Each of
+    them changes the last bits of some results (`exp`, `log`, `arccos`, matrix products) against the defaults."""
+    found = subprocess.run([str(python), "-c", "import numpy as np; m = np._core._multiarray_umath if hasattr(np, '_core')"
+                            " else np.core._multiarray_umath; print(' '.join(f for f in m.__cpu_dispatch__"
+                            " if m.__cpu_features__.get(f)))"], capture_output=True, text=True).stdout.split()
+    env = {"NUMBA_CPU_NAME": "generic", "NPY_DISABLE_CPU_FEATURES": " ".join(found)}
+    if platform.machine() in ("x86_64", "AMD64"):
+        env |= {"GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA,-AVX512F", "OPENBLAS_CORETYPE": "Nehalem"}
+    elif platform.machine() in ("aarch64", "arm64"):
+        env |= {"OPENBLAS_CORETYPE": "ARMV8"}
+    return env
+
+
+class CpuClock:
+    """The CPU (user + system) of the processes this one has waited for, and the machine's busy time (/proc/stat,
+    which also counts what no rusage sees: servers the tests start and do not wait for, and anything else)."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[str, float, float, float]] = []
+        self._last = self._now()
+
+    @staticmethod
+    def _now() -> tuple[float, float, float]:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        busy = float("nan")
+        try:
+            ticks = [int(v) for v in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
+            busy = (sum(ticks) - ticks[3] - (ticks[4] if len(ticks) > 4 else 0)) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            pass
+        return r.ru_utime + r.ru_stime, busy, time.monotonic()
+
+    def lap(self, name: str) -> None:
+        now = self._now()
+        self.rows.append((name, now[0] - self._last[0], now[1] - self._last[1], now[2] - self._last[2]))
+        self._last = now
+
+    def report(self) -> str:
+        total = [sum(r[i] for r in self.rows) for i in (1, 2, 3)]
+        parts = ", ".join(f"{name} {cpu:.0f} s" for name, cpu, _, _ in self.rows)
+        return (f"dev.py: CPU {total[0]:.0f} s ({total[0] / 60:.1f} min; {parts}); the machine busy {total[1]:.0f} s;"
+                f" {total[2] / 60:.1f} min of wall time on {os.cpu_count()} cores")
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("demo", "test", "setup"):
         print(__doc__.strip())
         return 2
+    clock = CpuClock()
     setup()
+    clock.lap("set-up")
     cmd, rest = argv[0], argv[1:]
     if cmd == "setup":
         print(f"dev.py: ready; run {BIN / 'rig'} --help")
         return 0
     if cmd == "demo":
         return subprocess.call([str(BIN / "rig"), "demo", *rest], env=child_env())
-    if not rest:  # the whole suite: numba's kernels compiled once here, not by every worker at once (tests/warm_kernels.py)
-        subprocess.call([str(BIN / "python"), str(ROOT / "tests" / "warm_kernels.py")], cwd=ROOT, stdout=subprocess.DEVNULL,
-                        env=child_env())
-    return subprocess.call([str(BIN / "python"), "-m", "pytest", *rest], cwd=ROOT, env=child_env())
+    fp_only = "--fp-paths" in rest
+    rest = [a for a in rest if a != "--fp-paths"]
+    whole = not rest or rest == ["--quick"]  # a tier, not a selection: worth compiling the kernels first
+    runs = [] if fp_only else [("pytest", {}, rest)]
+    if fp_only or not rest:  # the whole suite's numeric tests again, on other floating-point paths
+        other = other_fp_env(BIN / "python")
+        print("dev.py: the numeric tests on other floating-point paths: "
+              + " ".join(f"{k}='{v}'" for k, v in other.items()), flush=True)
+        runs.append(("numeric tests on other paths", other, ["-m", "numeric", *rest]))
+    code = 0
+    for name, env, args in runs:
+        if whole or fp_only:  # numba's kernels compiled once here, not by every worker at once (tests/warm_kernels.py)
+            subprocess.call([str(BIN / "python"), str(ROOT / "tests" / "warm_kernels.py")], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, env=child_env() | env)
+            clock.lap("kernels" if not env else "kernels on other paths")
+        code = max(code, subprocess.call([str(BIN / "python"), "-m", "pytest", *args], cwd=ROOT, env=child_env() | env))
+        clock.lap(name)
+    print(clock.report(), flush=True)
+    return code
 
 
 if __name__ == "__main__":

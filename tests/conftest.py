@@ -42,66 +42,19 @@ def pytest_make_collect_report(collector):
     _fail_skips_in_ci(outcome.get_result())
 
 
-#: what `--quick` (`python3 dev.py test --quick`, the inner loop) leaves out: controllers served in real time (serial
-#: stages, the GRBL firmware), the blind diagnosis trials and crash trials, the TUI, and every test that took 2 s or
-#: more of wall time on a loaded 2-core machine (measured per test, 2026-11-25). The full command runs them all.
-SLOW_FILES = {
-    "test_serial_stages.py", "test_zaber_protocol.py", "test_grbl_protocol.py", "test_grbl_firmware.py",
-    "test_grbl_firmware_harness.py", "test_grbl_golden.py", "test_stage_runs.py",  # real time
-    "test_diagnosis.py", "test_crash_safety.py", "test_recovery.py", "test_grouping.py",  # trials
-    "test_tui.py", "test_tui_operator.py",  # the terminal UI
-    "test_cli_flags.py", "test_cli_outputs.py", "test_cli_progress.py", "test_disk_full.py", "test_effects_guide.py",
-    "test_fuzz_recordings.py", "test_readme.py", "test_undetermined.py",
-    "test_enospc_injection.py", "test_kill_leftovers.py",  # the real command under strace, dozens of times
-    "test_tiny_runs.py",  # two real commands, 4 s
-    "test_independence.py", "test_ir_saturation.py", "test_bag_import.py",  # real recordings, small trials
-}
-SLOW_TESTS = {
-    "test_cli.py": {"test_console_script_is_installed_and_runs", "test_demo_small", "test_run_then_fit"},
-    "test_cli_json.py": {"test_diagnose", "test_fit_model_and_compare_share_the_fit_fields"},
-    "test_analysis_papercuts.py": {"test_a_plot_file_matplotlib_cannot_write_is_refused_before_the_fit",
-                                   "test_an_effect_the_data_do_not_show_sits_at_its_bound_and_says_so"},
-    "test_device_kinds.py": {"test_rig_devices_prints_only_its_listing_on_stdout"},
-    "test_effect_registry.py": {"test_the_diagnosis_finds_it_from_the_effects_flag"},
-    "test_protocol_catalogue.py": {"test_the_tui_runs_a_protocol_registered_at_run_time",
-                                   "test_ctrl_c_during_rig_run_exits_130_as_the_help_says"},
-    "test_device_options.py": {"test_the_installed_command_exits_2_on_a_stage_typo"},
-    "test_fit_many.py": {"test_a_reader_that_stops_early_ends_it_quietly"},
-    "test_fuzz_inputs.py": {"test_experiment_files", "test_import_manifests", "test_serial_replies"},
-    "test_import.py": {"test_fit_compare_and_diagnose_work_on_an_import", "test_import_gives_the_live_run_statistics_and_fit"},
-    "test_models.py": {"test_noise_floor_recovered_and_lambda_back_to_three"},
-    "test_oak.py": {"test_importing_the_driver_needs_no_sdk"},
-    "test_paper_windows.py": {"test_cli_prints_one_table_and_conclusion_per_scenario",
-                              "test_shot_noise_alone_gives_the_model_lambda_in_every_window",
-                              "test_noise_floor_makes_active_lambda_rise"},
-    "test_realsense.py": {"test_a_slow_reader_gets_every_frame_of_a_recording",
-                          "test_importing_the_driver_needs_no_sdk_and_using_it_says_what_to_install",
-                          "test_perpendicular_run_through_the_sdk_records_and_fits_like_the_fake_camera",
-                          "test_recording_made_by_the_sdk_plays_back_with_the_same_per_pixel_statistics"},
-    "test_reliability.py": {"test_a_second_writer_is_refused_with_who_holds_the_file", "test_sigterm_ends_a_run_like_ctrl_c"},
-    "test_rounding.py": {"test_shipped_table_is_what_the_sums_give"},
-    "test_user_effects.py": {"test_the_effects_flag_on_fit_and_compare"},
-    "test_recordings_compared.py": {"test_a_fleet_on_a_dask_cluster_gives_what_the_local_pool_gives"},
-}
-
-
 def pytest_addoption(parser):
     parser.addoption("--quick", action="store_true",
-                     help="the inner loop: leave out real-time, trial, TUI and slow tests (tests/conftest.py, SLOW_*)")
-
-
-def is_slow(item) -> bool:
-    path = Path(str(item.fspath)).name
-    return path in SLOW_FILES or item.originalname in SLOW_TESTS.get(path, ())
+                     help="the inner loop: the tests not marked slow (the same as -m 'not slow')")
 
 
 def pytest_collection_modifyitems(config, items):
+    """`--quick` leaves out the tests marked `slow` (pyproject.toml's markers say which)."""
     if not config.getoption("--quick"):
         return
-    slow = [item for item in items if is_slow(item)]
+    slow = [item for item in items if item.get_closest_marker("slow") is not None]
     if slow:
         config.hook.pytest_deselected(items=slow)
-        items[:] = [item for item in items if not is_slow(item)]
+        items[:] = [item for item in items if item.get_closest_marker("slow") is None]
 
 
 def pytest_unconfigure(config):

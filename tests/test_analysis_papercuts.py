@@ -71,6 +71,7 @@ def test_fit_of_an_import_does_not_say_its_stops_are_missing(imported, capsys):
         assert "planned stops" not in out and "--resume" not in out, out
 
 
+@pytest.mark.slow
 def test_a_plot_file_matplotlib_cannot_write_is_refused_before_the_fit(small_recording, tmp_path, capsys):
     assert main(["fit", str(small_recording), "--plot", str(tmp_path / "fit.txt")]) == 2
     one_line(capsys, "--plot", "fit.txt", ".txt", ".png", ".pdf", ".svg")
@@ -134,6 +135,7 @@ def test_a_missing_standard_error_says_why(small_recording, tmp_path, capsys):
     assert set(fit["error_notes"]) == {"k", "gain.gain"} and "cannot tell them apart" in fit["error_notes"]["k"]
 
 
+@pytest.mark.slow
 def test_an_effect_the_data_do_not_show_sits_at_its_bound_and_says_so(tmp_path):
     from rig.simulation.scenarios import hidden_scenario, record_scenario
 

@@ -25,6 +25,9 @@ from rig.cli import import_main
 from ros_bags import DEPTH, write_bag
 from simrig import record_perpendicular
 
+pytestmark = pytest.mark.slow
+
+
 ROOT = Path(__file__).resolve().parents[1]
 D435 = ROOT / "tests" / "vendor" / "real" / "realsense" / "single_depth_color_640x480.bag"
 STOPS_M = [0.75, 1.5, 2.25]

@@ -12,6 +12,7 @@ from rig.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_console_script_is_installed_and_runs():
     rig = Path(sys.executable).parent / "rig"
     assert rig.exists(), "install rig (python3 dev.py test does) so the console script exists"
@@ -43,6 +44,7 @@ def test_the_rig_program_sets_the_collector_and_leaves_it_frozen_also_after_an_e
     assert "rig fit: error: the following arguments are required: recording" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_run_then_fit(tmp_path, capsys):
     out = tmp_path / "a.h5"
     assert main(["run", "--protocol", "perpendicular", "--frames", "20", "--camera", "fake:width=48,depth_unit_mm=0.05",
@@ -96,6 +98,7 @@ def test_experiment_file_errors_name_the_key(tmp_path, capsys):
     assert "perpendicular has no parameter(s) ['frame']" in err
 
 
+@pytest.mark.slow
 def test_demo_small(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--frames", "10", "--width", "64"]) == 0
     text = capsys.readouterr().out

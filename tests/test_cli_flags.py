@@ -7,6 +7,10 @@ from pathlib import Path
 
 import rig
 from rig.cli import build_parser
+import pytest
+
+pytestmark = pytest.mark.slow
+
 
 RIG = Path(sys.executable).parent / "rig"
 

@@ -61,6 +61,7 @@ def test_fit(recordings, capsys):
            f"{fit['headline']['verdict']})" in text
 
 
+@pytest.mark.slow
 def test_fit_model_and_compare_share_the_fit_fields(recordings, capsys):
     doc = run_json(capsys, "fit", recordings["four"], "--model", "active")
     (fit,) = doc["fits"]
@@ -74,6 +75,7 @@ def test_fit_model_and_compare_share_the_fit_fields(recordings, capsys):
     assert set(floor["values"]) == {"k", "lambda", "noise_floor.sigma_px"} and floor["units"]["noise_floor.sigma_px"] == "px"
 
 
+@pytest.mark.slow
 def test_diagnose(recordings, capsys, tmp_path):
     doc = run_json(capsys, "diagnose", recordings["four"], "--out", tmp_path / "d")
     d = doc["diagnosis"]

@@ -9,6 +9,8 @@ from cli_in_process import rig_in_process
 
 from rig.reports.writable import output_problem
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture
 def recording(small_recording) -> Path:

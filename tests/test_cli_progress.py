@@ -18,6 +18,9 @@ import pytest
 from rig.models.progress import WorkProgress
 from rig.reports.work_progress import WorkProgressLine
 
+pytestmark = pytest.mark.slow
+
+
 RIG = str(Path(sys.executable).parent / "rig")
 
 

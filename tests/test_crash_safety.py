@@ -18,6 +18,9 @@ from protocols.recording import Recording
 from protocols.run_lock import lock_path
 from protocols.stop_journal import journal_dir
 
+pytestmark = pytest.mark.slow
+
+
 #: each trial is a fork of one server process that imported the crash child once (tests/crash_server.py)
 FORKS = multiprocessing.get_context("forkserver")
 FORKS.set_forkserver_preload(["crash_server"])

@@ -254,6 +254,7 @@ def test_sdk_chatter_during_the_probes_goes_to_stderr(capfd):
     assert captured.out == "listing\n" and "USB protocol not available" in captured.err
 
 
+@pytest.mark.slow
 def test_rig_devices_prints_only_its_listing_on_stdout():
     pytest.importorskip("depthai", reason="depthai is not installed (its logger is what chatters)")
     r = subprocess.run([str(Path(sys.executable).parent / "rig"), "devices"], cwd=ROOT, capture_output=True, text=True,

@@ -326,6 +326,7 @@ def test_rig_run_refuses_a_stage_typo_before_opening_anything(tmp_path, capsys, 
     assert opened == [] and not out.exists()
 
 
+@pytest.mark.slow
 def test_the_installed_command_exits_2_on_a_stage_typo(tmp_path):
     out = tmp_path / "x.h5"
     r = subprocess.run([str(RIG), "run", "--protocol", "perpendicular", "--stage", "grbl:///dev/null?ofset_m=0.3", "-o", str(out)],

@@ -18,6 +18,9 @@ from rig.cli import main
 from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN, NOT_INDEPENDENT, SATURATED_IR
 from rig.simulation.validation import run_trial
 
+pytestmark = pytest.mark.slow
+
+
 SEED = 1000
 #: the suite's trials are a quarter of the pixels of the docs' table (53 px wide, not 106; 100 frames a stop):
 #: 4-30 s of CPU a trial instead of 35-140 s, within the suite's budget. At seed 1000 every scenario ends as it

@@ -19,6 +19,9 @@ import pytest
 from protocols.recording import Recording
 from protocols.stop_journal import journal_dir
 
+pytestmark = pytest.mark.slow
+
+
 ROOT = Path(__file__).resolve().parents[1]
 CAMERA = "fake:width=106,height=60,seed=2"
 

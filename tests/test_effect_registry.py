@@ -82,6 +82,7 @@ def test_an_effect_defined_here_composes_and_fits_recovering_its_parameter(tilte
     assert abs(tilt - TILT) < 3 * se, (tilt, se)  # 3 standard errors: the chance of a miss is 0.3 %
 
 
+@pytest.mark.slow
 def test_the_diagnosis_finds_it_from_the_effects_flag(tilted_beam, tmp_path, capsys):
     from rig.cli import main
 

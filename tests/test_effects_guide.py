@@ -7,6 +7,10 @@ import re
 from pathlib import Path
 
 from rig.cli import main
+import pytest
+
+pytestmark = pytest.mark.slow
+
 
 ROOT = Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "effects.md"

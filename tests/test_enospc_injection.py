@@ -19,6 +19,9 @@ import pytest
 from protocols.recording import Recording
 from tiny_runs import tiny_run_env
 
+pytestmark = pytest.mark.slow
+
+
 ROOT = Path(__file__).resolve().parents[1]
 RIG = [str(Path(sys.executable).parent / "rig")]
 RUN = ["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9,seed=1", "--stage", "fake:",

@@ -48,6 +48,7 @@ def test_a_file_is_not_a_folder(shelf, capsys):
     assert "--many takes a folder" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_reader_that_stops_early_ends_it_quietly(shelf):
     """`rig fit --many DIR --json | head -1`: the pipe closes after the first line; rig stops without a traceback."""
     import subprocess

@@ -28,6 +28,7 @@ KEYS = ["stops_m", "frames_per_stop", "frames", "tilt_deg", "distance_m", "proje
 @FUZZ
 @given(protocol=st.sampled_from(["perpendicular", "tilted", "other"]),
        params=st.dictionaries(st.sampled_from(KEYS), values, max_size=6))
+@pytest.mark.slow
 def test_experiment_files(tmp_path, protocol, params):
     body = "\n".join(f"{k} = {toml_value(v)}" for k, v in params.items())
     path = tmp_path / "e.toml"
@@ -85,6 +86,7 @@ replies = st.one_of(
 )
 
 
+@pytest.mark.slow
 @FUZZ
 @given(kind=st.sampled_from(["grbl", "zaber"]), reply=replies)
 def test_serial_replies(kind, reply):
@@ -121,6 +123,7 @@ GOOD_MANIFEST = dict(fx=400.0, fy=400.0, cx=50.0, cy=30.0, baseline_m=0.05, dept
 @FUZZ
 @given(changes=st.dictionaries(st.sampled_from(MANIFEST_KEYS), values, max_size=4),
        table=st.one_of(st.none(), st.dictionaries(st.text(max_size=6), values, max_size=3)))
+@pytest.mark.slow
 def test_import_manifests(tmp_path, changes, table):
     from drivers.errors import FolderImportError
     from drivers.folder import MANIFEST_NAME, load_settings

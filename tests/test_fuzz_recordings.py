@@ -20,6 +20,9 @@ from hypothesis import strategies as st
 from cli_in_process import rig_in_process
 from simrig import record_perpendicular
 
+pytestmark = pytest.mark.slow
+
+
 #: examples per property in the test suite; RIG_FUZZ_EXAMPLES=400 for the figures in docs/reliability.md
 FUZZ = settings(max_examples=int(os.environ.get("RIG_FUZZ_EXAMPLES", "60")), deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

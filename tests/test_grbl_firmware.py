@@ -32,7 +32,7 @@ HOMING = {22: 1, 25: 3000, 24: 300, 27: 2}
 RAIL_MM = 300.0
 OFFSET_M = 0.5
 
-pytestmark = pytest.mark.usefixtures("firmware_built")
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("firmware_built")]
 
 
 @pytest.fixture(scope="module")

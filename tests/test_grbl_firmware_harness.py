@@ -17,6 +17,9 @@ import serial
 import grbl_firmware
 from grbl_firmware import GrblFirmware, require_firmware
 
+pytestmark = pytest.mark.slow
+
+
 FAST = {110: 6000, 120: 500}  # 100 mm/s, 500 mm/s^2
 
 

@@ -14,6 +14,8 @@ import pytest
 from grbl_firmware import require_firmware
 from grbl_transcripts import GOLDEN, SCRIPTS, firmware_transcript, simulator_transcript
 
+pytestmark = pytest.mark.slow
+
 
 def golden(name: str) -> str:
     path = GOLDEN / f"{name}.txt"

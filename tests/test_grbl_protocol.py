@@ -20,6 +20,9 @@ from protocols import Runner, perpendicular
 from protocols.recording import Recording
 from rig.devices import open_devices
 
+pytestmark = pytest.mark.slow
+
+
 def wait_until(condition, what: str, timeout_s: float = 20.0) -> None:
     """Poll `condition()` until it holds; fail (not hang) if it never does."""
     deadline = time.monotonic() + timeout_s

@@ -18,6 +18,9 @@ from rig.models import ModelData, parse_model
 from rig.models.grouping import GroupedData, group, tile_size, whole_stops
 from rig.models.optimise import _standard_errors, fit_data
 
+pytestmark = pytest.mark.slow
+
+
 CAMERA = "fake:width=424,height=240,depth_unit_mm=0.1,seed=5,effects=noise_floor(sigma_px=0.02)+slant_range"
 #: the sweep's camera has mismatches too, so the outliers' parameters are determined by the data
 SWEEP_CAMERA = CAMERA.replace("width=424,height=240", "width=318,height=180") + "+outliers(fraction=0.02,width_px=2.0)"

@@ -81,6 +81,7 @@ def stop_stats(path: Path):
         return [(s.stats, s.series) for s in rec.stops()]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt,by_name", [("png", False), ("npy", False), ("png", True)])
 def test_import_gives_the_live_run_statistics_and_fit(live, tmp_path, fmt, by_name):
     src = dump(live, tmp_path / "frames", fmt=fmt, by_name=by_name)
@@ -118,6 +119,7 @@ def test_imported_file_carries_distances_and_provenance(live, tmp_path):
         assert rec.calibration.depth_scale_m == manifest_for(live)["depth_unit_m"]
 
 
+@pytest.mark.slow
 def test_fit_compare_and_diagnose_work_on_an_import(live, tmp_path, capsys):
     out = import_folder(dump(live, tmp_path / "frames", fmt="npy"), tmp_path / "imported.h5")
     assert rig_main(["fit", str(out)]) == 0

@@ -15,6 +15,9 @@ from protocols.recording import Recording
 from rig.cli import main
 from rig.models.independence import Independence, independence, pooled_lag1
 
+pytestmark = pytest.mark.slow
+
+
 OAKD = Path(__file__).resolve().parent / "vendor" / "real" / "oakd-filtered"
 # the OAK-D recording did not save its intrinsics: these are made up (a 400P OAK-D is about fx 450 px at 640 wide)
 MANIFEST = """# made-up intrinsics: the recording did not save them

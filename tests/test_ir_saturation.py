@@ -12,6 +12,8 @@ from protocols import Runner, perpendicular
 from protocols.recording import Recording
 from protocols.stats import MeanImageAccumulator
 
+pytestmark = pytest.mark.slow
+
 
 @pytest.mark.parametrize("dtype, full_scale, top", [(np.uint8, None, 255), (np.uint16, None, 65535),
                                                     (np.uint16, 1023, 1023)])

@@ -16,6 +16,10 @@ from pathlib import Path
 from protocols.leftovers import dead_leftovers
 from protocols.recording import Recording
 from test_enospc_injection import IMPORT, RUN, _calls, _env, _strace
+import pytest
+
+pytestmark = pytest.mark.slow
+
 
 RIG = [str(Path(sys.executable).parent / "rig")]
 

@@ -61,6 +61,7 @@ def test_base_model_is_the_papers_fit(tmp_path):
     assert mine.errors["k"] == pytest.approx(paper.se_k, rel=0.01)
 
 
+@pytest.mark.slow
 def test_noise_floor_recovered_and_lambda_back_to_three(floor_data):
     d, (k, lam), _ = floor_data
     f = (active + noise_floor).fit(d)

@@ -122,6 +122,7 @@ def test_no_device_gives_a_one_line_error_within_five_seconds():
     assert msg.startswith("oak: no OAK device found") and "--camera fake:" in msg and "\n" not in msg
 
 
+@pytest.mark.slow
 def test_importing_the_driver_needs_no_sdk():
     code = (
         "import sys; sys.modules['depthai'] = None\n"

@@ -117,6 +117,7 @@ def test_scenario_noise_floor_means_native_pixels_at_any_width(width):
 
 # -- the simulated scenarios ------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["shot-active", "shot-passive"])
 def test_shot_noise_alone_gives_the_model_lambda_in_every_window(results, name):
     r = results[name]
@@ -126,6 +127,7 @@ def test_shot_noise_alone_gives_the_model_lambda_in_every_window(results, name):
     assert r.trend.direction == "flat", r.trend
 
 
+@pytest.mark.slow
 def test_noise_floor_makes_active_lambda_rise(results):
     r = results["floor-active"]
     t = r.trend
@@ -167,6 +169,7 @@ def test_censoring_makes_active_lambda_fall(results):
     assert cens[(0.75, 3.00)].n_samples < full[(0.75, 3.00)].n_samples
 
 
+@pytest.mark.slow
 def test_cli_prints_one_table_and_conclusion_per_scenario(tmp_path, capsys):
     assert paper_windows_main(["--out", str(tmp_path), "--frames", "20", "--width", "53", "--seed", "3"]) == 0
     out = capsys.readouterr().out

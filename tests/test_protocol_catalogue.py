@@ -119,6 +119,7 @@ def test_a_protocol_registered_at_run_time_is_on_the_tuis_form(mine, tmp_path, m
     assert load_experiment("mine.toml").plan.params == s.plan().params
 
 
+@pytest.mark.slow
 def test_the_tui_runs_a_protocol_registered_at_run_time(mine, tmp_path, monkeypatch):
     pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[test])")
     from textual.widgets import Label, Select
@@ -249,6 +250,7 @@ def test_rig_run_takes_a_range_of_stops_as_the_tui_does(tmp_path, capsys):
         in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_rig_run_exits_130_as_the_help_says(tmp_path):
     assert "130 interrupted" in " ".join(subprocess.run([str(RIG), "--help"], capture_output=True, text=True).stdout.split())
     out = tmp_path / "r.h5"

@@ -99,6 +99,7 @@ def _run_software(path, world_seed=0, frames=40, stops=STOPS, **sw_kw):
 
 # -- a run through the SDK records and fits like the same run on the plain fake camera ------------
 
+@pytest.mark.slow
 def test_perpendicular_run_through_the_sdk_records_and_fits_like_the_fake_camera(tmp_path):
     sw = _run_software(tmp_path / "sdk.h5")
     plain, truth, _ = record_perpendicular(tmp_path / "plain.h5", width=W, frames=40, depth_unit_mm=UNIT_MM, stops_m=STOPS)
@@ -137,6 +138,7 @@ def test_perpendicular_run_through_the_sdk_records_and_fits_like_the_fake_camera
 
 # -- recorded with the SDK's recorder, played back through realsense:file= ----------------------------
 
+@pytest.mark.slow
 def test_recording_made_by_the_sdk_plays_back_with_the_same_per_pixel_statistics(tmp_path):
     _rs()  # the SDK must be there (its reader below, `_read_with_sdk`, takes it itself)
     from fakes.stage import FakeStage
@@ -196,6 +198,7 @@ def test_playback_past_the_end_says_the_recording_ended(tmp_path):
             list(cam.frames(10_000))
 
 
+@pytest.mark.slow
 def test_a_slow_reader_gets_every_frame_of_a_recording(tmp_path):
     """Reading a recording more slowly than the SDK reads the file loses nothing and does not hang."""
     from fakes.world import FakeWorld
@@ -312,6 +315,7 @@ def test_no_camera_attached_gives_a_one_line_error_quickly(tmp_path):
     assert "no RealSense camera is connected" in msg and "--camera fake:" in msg and "\n" not in msg
 
 
+@pytest.mark.slow
 def test_importing_the_driver_needs_no_sdk_and_using_it_says_what_to_install():
     code = (
         "import sys; sys.modules['pyrealsense2'] = None\n"

@@ -159,6 +159,7 @@ def test_a_fit_writes_its_report_page(runs, tmp_path):
     assert 'data-key="exposure"' in page
 
 
+@pytest.mark.slow
 def test_a_fleet_on_a_dask_cluster_gives_what_the_local_pool_gives(runs, tmp_path, monkeypatch):
     """A real scheduler and two workers (distributed.LocalCluster over TCP: every task and result crosses a socket,
     pickled): rig fit --many and rig compare give the same numbers there as in the local process pool. The workers

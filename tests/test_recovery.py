@@ -16,6 +16,9 @@ import pytest
 from rig.analysis import fit_recording
 from simrig import record_perpendicular
 
+pytestmark = pytest.mark.slow
+
+
 SEEDS = range(40)
 FRAMES = 50
 STOPS_M = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]

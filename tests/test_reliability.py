@@ -65,6 +65,7 @@ def test_resuming_a_complete_file_changes_nothing(tmp_path):
         assert rec.attrs["ended_utc"] == ended
 
 
+@pytest.mark.slow
 def test_a_second_writer_is_refused_with_who_holds_the_file(tmp_path):
     path = tmp_path / "r.h5"
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from protocols.run_lock import RunLock; "
@@ -145,6 +146,7 @@ def test_bad_values_on_the_command_line_are_one_line(tmp_path, capsys, args, mes
     assert len(err.splitlines()) == 1 and message in err, err
 
 
+@pytest.mark.slow
 def test_sigterm_ends_a_run_like_ctrl_c(tmp_path):
     out = tmp_path / "r.h5"
     proc = subprocess.Popen([sys.executable, "-c", "import sys; from rig.cli import main; sys.exit(main(sys.argv[1:]))",

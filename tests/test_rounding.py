@@ -45,6 +45,7 @@ def test_expected_sample_variance_matches_simulated_rounded_normals(s, n):
         assert abs(diff[m].mean()) < 4.9 * se + 1e-3 * predicted[m].mean(), (s, n, b, diff[m].mean(), se)
 
 
+@pytest.mark.slow
 def test_shipped_table_is_what_the_sums_give():
     """The table in the package is the generating-function computation's, at a few grid points (regenerate it
     with `python -m rig.models.rounding_table` when the grids change)."""

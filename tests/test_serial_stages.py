@@ -14,6 +14,9 @@ from drivers.serial import GrblStage, ZaberStage
 from fakes.grbl_sim import GrblSim
 from fakes.zaber_sim import ZaberSim
 
+pytestmark = pytest.mark.slow
+
+
 FAST_SIM = {"speed_mm_s": 20000.0}
 #: a GRBL built with HOMING_FORCE_SET_ORIGIN homing towards -X with no pull-off: machine X is the distance from the
 #: home switch, so these tests can compare the carriage with the rail directly (stock geometry: test_grbl_stock.py)

@@ -15,6 +15,9 @@ from rig.cli import main
 from rig.devices import open_devices
 from protocols.recording import Recording
 
+pytestmark = pytest.mark.slow
+
+
 STOPS = [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0]
 CAMERA = "fake:width=16,height=9,depth_unit_mm=0.1"
 FAST = "settle=0&timeout_s=0.5&poll_s=0.01"

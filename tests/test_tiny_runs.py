@@ -11,6 +11,10 @@ import h5py
 import numpy as np
 
 from tiny_runs import tiny_run_env
+import pytest
+
+pytestmark = pytest.mark.slow
+
 
 RIG = [str(Path(sys.executable).parent / "rig")]
 RUN = ["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9,seed=1", "--stage", "fake:",

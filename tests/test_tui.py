@@ -15,6 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow
+
+
 pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[test])")
 pytest.importorskip("textual_plotext", reason="rig tui needs textual-plotext")
 

@@ -14,6 +14,9 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
+
 pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[test])")
 
 from textual.binding import Binding  # noqa: E402

@@ -10,6 +10,9 @@ from rig.models import ModelData
 from rig.models.determinacy import lambda_status
 from simrig import record_perpendicular
 
+pytestmark = pytest.mark.slow
+
+
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory, small_recording) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("undetermined")

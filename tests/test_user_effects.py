@@ -47,6 +47,7 @@ def test_a_user_effect_fits_exactly_like_the_built_in_it_copies(tmp_path, floor_
     assert "my_floor.sigma_px" in mine.report() and "px" in mine.report()
 
 
+@pytest.mark.slow
 def test_the_effects_flag_on_fit_and_compare(tmp_path, floor_recording, capsys):
     fx = write(tmp_path, MY_FLOOR)
     assert main(["fit", str(floor_recording), "--model", "active+my_floor", "--effects", str(fx)]) == 0

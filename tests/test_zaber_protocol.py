@@ -20,6 +20,9 @@ from drivers.serial import ZaberStage
 from drivers.serial.zaber import checksum as driver_checksum
 from fakes.zaber_sim import ZaberSim, checksum as sim_checksum
 
+pytestmark = pytest.mark.slow
+
+
 FAST = {"speed_mm_s": 5000.0, "start_mm": 100.0, "travel_mm": 3000.0}
 
 
