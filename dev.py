@@ -5,7 +5,7 @@ Creates .venv/ beside this file (once), installs rig into it (again whenever pyp
 changes), then runs the demo or the test suite. Needs only Python 3.11+.
 
   python3 dev.py test             the whole suite, then its numeric tests again on other floating-point paths,
-                                  and the CPU each part took
+                                  and the CPU each part took (by test file in .venv/suite-cpu.md)
   python3 dev.py test --quick     the inner loop, under a minute: the tests not marked slow
   python3 dev.py test --fp-paths  only the numeric tests, on other floating-point paths (docs/testing.md)
 
@@ -153,7 +153,8 @@ def main(argv: list[str]) -> int:
     fp_only = "--fp-paths" in rest
     rest = [a for a in rest if a != "--fp-paths"]
     whole = not rest or rest == ["--quick"]  # a tier, not a selection: worth compiling the kernels first
-    runs = [] if fp_only else [("pytest", {}, rest)]
+    # the whole suite writes where its CPU went, by test file (tests/cpu_table.py; docs/testing.md has the table)
+    runs = [] if fp_only else [("pytest", {}, rest or ["--cpu-table", str(VENV / "suite-cpu.md")])]
     if fp_only or not rest:  # the whole suite's numeric tests again, on other floating-point paths
         other = other_fp_env(BIN / "python")
         print("dev.py: the numeric tests on other floating-point paths: "

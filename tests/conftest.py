@@ -21,6 +21,8 @@ collect_less_often()  # as the `rig` program does (rig/process_gc.py): the worke
 
 import pytest
 
+pytest_plugins = ["cpu_table"]  # `--cpu-table FILE`: the CPU by test file (tests/cpu_table.py)
+
 
 def _fail_skips_in_ci(report) -> None:
     """In CI everything the tests need is installed, so a skip means a broken set-up: fail it. An expected
