@@ -78,22 +78,38 @@ class Run:
             assert x == pytest.approx(rail_x_mm(self.fw, z, homing=homing, x0_mm=x0_mm), abs=0.01), z
 
 
-def when_moving_to(fw: GrblFirmware, x_mm: float, delay_s: float, action) -> threading.Thread:
-    """Run `action()` `delay_s` after the client has sent the move to machine X `x_mm`."""
-    pattern = f"G53 G1 X{x_mm:.3f} ".encode()
+class Trigger(threading.Thread):
+    """`action()`, run `delay_s` after the client has sent the move to machine X `x_mm` (`when_moving_to`)."""
 
-    def wait() -> None:
-        deadline = time.monotonic() + 60.0
-        while pattern not in fw.sent_bytes():
+    def __init__(self, fw: GrblFirmware, x_mm: float, delay_s: float, action, wait_s: float = 60.0) -> None:
+        super().__init__(daemon=True)
+        self.fw, self.pattern = fw, f"G53 G1 X{x_mm:.3f} ".encode()
+        self.delay_s, self.action, self.wait_s = delay_s, action, wait_s
+        self.fired = False
+
+    def run(self) -> None:
+        deadline = time.monotonic() + self.wait_s
+        while self.pattern not in self.fw.sent_bytes():
             if time.monotonic() > deadline:
                 return
             time.sleep(0.01)
-        time.sleep(delay_s)
-        action()
+        time.sleep(self.delay_s)
+        self.action()
+        self.fired = True
 
-    thread = threading.Thread(target=wait, daemon=True)
-    thread.start()
-    return thread
+    def done(self) -> None:
+        """Fail, naming what was waited for, if the move never came (the fault was never injected)."""
+        self.join(timeout=5.0)
+        assert self.fired, (f"the client never sent {self.pattern.decode().strip()!r} within {self.wait_s:g} s (or the "
+                            f"action did not end within 5 s after): the fault was not injected; sent so far: "
+                            f"{self.fw.sent_bytes()[-200:]!r}")
+
+
+def when_moving_to(fw: GrblFirmware, x_mm: float, delay_s: float, action) -> Trigger:
+    """Run `action()` `delay_s` after the client has sent the move to machine X `x_mm`; `.done()` checks it ran."""
+    trigger = Trigger(fw, x_mm, delay_s, action)
+    trigger.start()
+    return trigger
 
 
 def report(fw: GrblFirmware) -> str:
@@ -177,7 +193,7 @@ def fail_mid_move_then_resume(tmp_path, fault, phrase: str, *, options: str = ""
         trigger = when_moving_to(fw, 100.0, 0.3, lambda: fault(fw))
         with pytest.raises(RunError) as err:
             run()
-        trigger.join(timeout=5.0)
+        trigger.done()
         if cleanup:
             cleanup(fw)
         fw.clear_faults()
@@ -243,8 +259,9 @@ def test_one_glitch_mid_move_is_asked_again_and_the_run_finishes(tmp_path, glitc
     with GrblFirmware(tmp_path / "fw", rail_mm=RAIL_MM, x0_mm=5.0,
                       settings={130: RAIL_MM, 110: 1200, 120: 100}) as fw:
         run = Run(fw, tmp_path / "s.h5", [0.5, 0.6, 0.7], "homing=0")
-        when_moving_to(fw, 100.0, 0.3, lambda: inject(fw))
+        trigger = when_moving_to(fw, 100.0, 0.3, lambda: inject(fw))
         assert run() == ["0.500m", "0.600m", "0.700m"]
+        trigger.done()
         run.check_positions(homing=False, x0_mm=5.0)
         assert not alarms(fw)
 
@@ -256,9 +273,10 @@ def test_a_reset_mid_move_needs_homing_and_is_refused_without_it(tmp_path):
     settings = {130: RAIL_MM, 110: 1200, 120: 100}
     with GrblFirmware(tmp_path / "fw", rail_mm=RAIL_MM, x0_mm=5.0, settings=settings) as fw:
         run = Run(fw, tmp_path / "s.h5", [0.5, 0.6, 0.7], "homing=0")
-        when_moving_to(fw, 100.0, 0.3, lambda: fw.press(b"\x18"))  # someone resets the controller mid-move
+        trigger = when_moving_to(fw, 100.0, 0.3, lambda: fw.press(b"\x18"))  # someone resets the controller mid-move
         with pytest.raises(RunError) as err:
             run()
+        trigger.done()
         assert "ALARM:3" in alarms(fw) and "ALARM:3" in str(err.value)
         time.sleep(1.0)
         before = len(fw.sent_bytes())
@@ -274,9 +292,10 @@ def test_an_unplugged_controller_resumes_on_a_new_port_after_homing(tmp_path):
     with GrblFirmware(tmp_path / "fw", rail_mm=RAIL_MM, x0_mm=150.0, settings=settings) as fw:
         run = Run(fw, tmp_path / "s.h5", [0.5, 0.6, 0.7])
         old_port = fw.port
-        when_moving_to(fw, -102.0, 0.3, fw.kill)  # the cable is pulled mid-move: the firmware dies with it
+        trigger = when_moving_to(fw, -102.0, 0.3, fw.kill)  # the cable is pulled mid-move: the firmware dies with it
         with pytest.raises(RunError) as err:
             run()
+        trigger.done()
         assert "port disconnected" in str(err.value) or "no such serial port" in str(err.value), str(err.value)
         fw.restart()  # plugged in again: a new port, MPos 0 wherever the carriage stopped, locked in Alarm
         assert fw.port != old_port
