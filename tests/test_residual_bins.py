@@ -56,6 +56,7 @@ def _expected(layout, d):
             "incidence": (np.digitize(angle, layout.angle_edges[1:-1]), angle)}
 
 
+@pytest.mark.numeric
 def test_every_familys_labels_and_covariate_are_numpys():
     d = _data(np.random.default_rng(7))
     layout = _Layout.of(d)
@@ -77,6 +78,7 @@ def test_every_familys_labels_and_covariate_are_numpys():
         assert got.lo[i] == used.min() and got.size[i] == used.max() - used.min() + 1, name
 
 
+@pytest.mark.numeric
 def test_values_on_the_edges_fall_where_numpy_puts_them():
     d = _data(np.random.default_rng(11))
     layout = _Layout.of(d)
@@ -127,6 +129,7 @@ def test_a_family_without_its_covariate_is_left_out():
     np.testing.assert_array_equal(got["range"][0], np.round(d.z_m / 0.25).astype(np.int64))
 
 
+@pytest.mark.numeric
 def test_a_bins_sums_are_the_pooled_quantities_by_their_definitions():
     """compare_bins's sums per group, against numpy's own sums of each quantity as `pixel_columns` defines it:
     pixels, degrees of freedom, M2, nu x predicted variance, and the kurtosis pooling sums of the usable pixels."""
@@ -167,6 +170,7 @@ def test_a_bins_sums_are_the_pooled_quantities_by_their_definitions():
     assert -1 not in sums.sums
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("per_row", [False, True])
 def test_stop_sums_are_numpys_sums_of_each_quantity(per_row):
     """`StopSums.add` (one compiled pass) against numpy's sums of each quantity by its definition, stop by stop,

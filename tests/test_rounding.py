@@ -46,6 +46,7 @@ def test_expected_sample_variance_matches_simulated_rounded_normals(s, n):
 
 
 @pytest.mark.slow
+@pytest.mark.numeric
 def test_shipped_table_is_what_the_sums_give():
     """The table in the package is the generating-function computation's, at a few grid points (regenerate it
     with `python -m rig.models.rounding_table` when the grids change)."""
