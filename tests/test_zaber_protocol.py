@@ -64,7 +64,8 @@ def test_official_library_detects_homes_moves_and_reads_with_checksums():
         deadline = time.monotonic() + 5.0  # the library hands alerts over on its own thread: wait for them
         while len(alerts) < 3 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert len(alerts) >= 3 and all(a.status == "IDLE" for a in alerts)  # home and both moves ended
+        # home and both moves ended
+        assert len(alerts) >= 3 and all(a.status == "IDLE" for a in alerts), f"within 5 s, alerts {alerts}, not 3 IDLE"
         # every command it sent carried a message id and a valid checksum
         framed = [c for c in sim.commands if c.startswith("/")]
         assert framed and all(":" in c and sim_checksum(c[1:c.rindex(":")]) == c[c.rindex(":") + 1:] for c in framed)
