@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from scipy.optimize import minimize
 
 from rig.models.stopping import STOP_NATS, NewtonStop, inverse_hessian
@@ -72,11 +73,28 @@ def test_the_stop_waits_for_one_step_per_parameter_before_trusting_its_estimate(
     assert not stop.stopped
 
 
+@pytest.mark.numeric
 def test_the_bfgs_estimate_meets_the_secant_equation_and_is_exact_in_one_dimension():
     a = np.array([[4.0, 1.0], [1.0, 3.0]])
     xs = [np.array([1.0, -2.0]), np.array([0.4, -0.5]), np.array([0.1, 0.05])]
     h = inverse_hessian([(x, a @ x) for x in xs])
     s, y = xs[2] - xs[1], a @ (xs[2] - xs[1])
-    assert np.allclose(h @ y, s, rtol=1e-12)
+    # The last update is h = V h0 V' + rho s s', V = I - rho s y', and V' y = 0: h y = s exactly in exact arithmetic.
+    # Rounded, h's entries are within 8 u of |V| |h0| |V'| + rho |s| |s'| (two 2 x 2 products, V's own rounding, the
+    # sum), V' y is within u (2 rho |y| |s'| |y| + |V'| |y|) of 0 instead, and the product h y rounds within 2 u |h| |y|
+    # (a BLAS kernel may fuse it: no more)
+    u = np.finfo(np.float64).eps / 2
+    rho = 1.0 / float(s @ y)
+    v = np.eye(2) - rho * np.outer(s, y)
+    s0, y0 = xs[1] - xs[0], a @ (xs[1] - xs[0])
+    h0 = inverse_hessian([(xs[0], a @ xs[0]), (xs[1], a @ xs[1])], prior=np.eye(2) * float(s @ y) / float(y @ y))
+    assert float(s0 @ y0) > 0 and h0 is not None
+    big_v, big_s, big_y = np.abs(v), np.abs(s), np.abs(y)
+    bound = u * (8 * (big_v @ np.abs(h0) @ big_v.T @ big_y + rho * big_s * (big_s @ big_y))
+                 + 2 * big_v @ np.abs(h0) @ (2 * rho * big_y * (big_s @ big_y) + big_v.T @ big_y)
+                 + 2 * np.abs(h) @ big_y)
+    assert np.all(np.abs(h @ y - s) <= bound), (h @ y - s, bound)
+    # one dimension: V = 1 - fl(1/5) 5 = 0 exactly (fl(1/5) 5 rounds to 1 in round-to-nearest, on any IEEE machine,
+    # and an elementwise product fuses with nothing), so h = rho s s = fl(1/5): exact
     h1 = inverse_hessian([(np.array([2.0]), np.array([10.0])), (np.array([1.0]), np.array([5.0]))])
     assert h1[0, 0] == 1 / 5.0
