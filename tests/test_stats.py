@@ -46,9 +46,12 @@ def test_pixel_without_samples_is_nan_and_count_zero():
     r = acc.result()
     assert r.count[0, 0] == 0 and np.isnan(r.mean_m[0, 0])
     assert r.count[0, 1] == 2
-    assert np.isclose(r.mean_m[0, 1], 1.001)
-    assert np.isclose(r.m2_m2[0, 1], 2 * 0.001**2)
-    assert np.isclose(r.variance_m2[0, 1], 2e-6)
+    # against decimal values: each side a few roundings of the same exact number (1001 units of fl(0.001); 2 units^2
+    # of it squared), within 8 u of each other (np.isclose's default atol=1e-8 would allow 0.5 % of 2e-6)
+    rtol = 4 * np.finfo(np.float64).eps
+    assert np.isclose(r.mean_m[0, 1], 1.001, rtol=rtol, atol=0)
+    assert np.isclose(r.m2_m2[0, 1], 2 * 0.001**2, rtol=rtol, atol=0)
+    assert np.isclose(r.variance_m2[0, 1], 2e-6, rtol=rtol, atol=0)
 
 
 @pytest.mark.numeric
