@@ -96,7 +96,7 @@ def test_import_gives_the_live_run_statistics_and_fit(live, tmp_path, fmt, by_na
         assert np.array_equal(sa.center_mean_m, sb.center_mean_m, equal_nan=True)
         assert np.array_equal(sa.valid_fraction, sb.valid_fraction)
     f_live, f_imp = fit_recording(live).fit, fit_recording(out).fit
-    assert f_imp.k == pytest.approx(f_live.k, rel=1e-9) and f_imp.lam == pytest.approx(f_live.lam, rel=1e-9)
+    assert (f_imp.k, f_imp.lam) == (f_live.k, f_live.lam)  # the same implementation on the same statistics
     assert 2.5 < f_imp.lam < 3.5
     assert [e.frame for e in events if e.kind == "frame"][-1] == FRAMES
     assert sum(e.kind == "stop_done" for e in events) == len(STOPS_M)
