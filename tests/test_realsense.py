@@ -122,11 +122,12 @@ def test_perpendicular_run_through_the_sdk_records_and_fits_like_the_fake_camera
             assert np.all(np.diff(s.series.frame_number) > 0)
             assert np.nanmedian(s.stats.mean_m) == pytest.approx(z, rel=0.01)
             # identical frames, identical statistics: the recording holds exactly the frames the
-            # software device was fed, with the frame numbers the SDK reported
+            # software device was fed, with the frame numbers the SDK reported; the same accumulator on
+            # the same frames with the depth unit the recording holds: the same numbers, to the last bit
             want = _stats_from_log(sw.log, s.series.frame_number, (H, W), c.depth_scale_m)
             np.testing.assert_array_equal(s.stats.count, want.count)
-            np.testing.assert_allclose(s.stats.mean_m, want.mean_m, rtol=1e-12, equal_nan=True)
-            np.testing.assert_allclose(s.stats.m2_m2, want.m2_m2, rtol=1e-9, atol=1e-18)
+            np.testing.assert_array_equal(s.stats.mean_m, want.mean_m)
+            np.testing.assert_array_equal(s.stats.m2_m2, want.m2_m2)
 
     a, b = fit_recording(tmp_path / "sdk.h5").fit, fit_recording(plain).fit
     for name in ("k", "lam"):
@@ -165,9 +166,10 @@ def test_recording_made_by_the_sdk_plays_back_with_the_same_per_pixel_statistics
         assert played.attrs["camera_serial"] == live.attrs["camera_serial"] == "SW-D435-0001"
         (p,), (l,) = list(played.stops()), list(live.stops())
         want = _stats_from_log(sw.log, p.series.frame_number, (H, W), played.calibration.depth_scale_m)
+        # the same accumulator on the same frames and depth unit: exactly
         np.testing.assert_array_equal(p.stats.count, want.count)
-        np.testing.assert_allclose(p.stats.mean_m, want.mean_m, rtol=1e-12, equal_nan=True)
-        np.testing.assert_allclose(p.stats.m2_m2, want.m2_m2, rtol=1e-9, atol=1e-18)
+        np.testing.assert_array_equal(p.stats.mean_m, want.mean_m)
+        np.testing.assert_array_equal(p.stats.m2_m2, want.m2_m2)
         assert np.all(np.diff(p.series.frame_number) == 1)  # every recorded frame, none dropped
         assert p.settings_read_back == PLAN.to_dict()
         # the same wall at the same distance: per-pixel means agree within their noise
