@@ -39,7 +39,8 @@ def test_samples_the_model_expects_lost_and_none_were_are_counted_under_the_mode
     # the share p lost: z within (k + 3) u / p + (k + 10) u (7e-11 for 4 samples expected lost, 1e-11 for 25)
     u, k = np.finfo(np.float64).eps / 2, last.sum()
     assert check.se[-1] == pytest.approx(math.sqrt(p * (1 - p) / total), rel=u / (2 * p) + (k + 6) * u, abs=0)
-    assert check.z[-1] == pytest.approx(expected_lost / math.sqrt(expected_lost * (1 - p)), rel=(k + 3) * u / p + (k + 10) * u, abs=0)
+    assert check.z[-1] == pytest.approx(expected_lost / math.sqrt(expected_lost * (1 - p)),
+                                        rel=(k + 3) * u / p + (k + 10) * u, abs=0)
     # where the model expects nothing lost, the floor of one sample stays: one over a sum of the first stop's frames,
     # here and there added in other orders, 2 k u apart at most. (abs=0: pytest.approx's own 1e-12 would be 2e-9 of se)
     first = d.stop == d.stop.min()
