@@ -128,6 +128,7 @@ def test_a_model_that_does_not_fit_the_runs_is_named_in_the_verdict():
     assert "rig diagnose run3.h5" in text
 
 
+@pytest.mark.numeric
 def test_the_differences_are_in_standard_errors_of_the_difference(runs):
     results = [fit_for_comparison(FitJob(str(p))) for p in runs["alike"][:3]]
     pairs = differences(results)
