@@ -96,7 +96,10 @@ from typing import Callable, Iterable, NamedTuple
 HERE = Path(__file__).resolve().parent
 TARBALL = HERE / "vendor" / "grbl" / "grbl-1.1h-with-grbl-sim.tar.gz"
 EXE_NAME = "grbl_sim.exe"
-MAKE_FLAGS = "-g -O2 -fcommon"  # modern gcc needs -fcommon (grbl-sim defines globals in headers)
+# modern gcc needs -fcommon (grbl-sim defines globals in headers); -ffp-contract=off: GRBL's float arithmetic (the
+# planner, printFloat's rounding) as on x86-64, where the golden transcripts were recorded: GCC fuses a * b + c into
+# one operation on processors that have one (aarch64) unless told not to, which can move a printed position by a digit
+MAKE_FLAGS = "-g -O2 -fcommon -ffp-contract=off"
 BANNER = "Grbl 1.1h ['$' for help]"
 CARRIAGE_FILE = "CARRIAGE.TXT"
 

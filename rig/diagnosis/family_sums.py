@@ -3,7 +3,8 @@ compiled passes: each pixel's bin in every family (`row_labels`) and, in the sam
 family's sums (`residual_sums`).
 
 A pixel's bin in each family is what numpy's digitize, round-half-to-even and float32 arithmetic give
-(tests/test_residual_bins.py). Its per-pixel columns (`rig.diagnosis.bins.pixel_columns`) are summed over runs
+(tests/test_residual_bins.py); the incidence angle is the C library's acos, which may differ from numpy's arccos in
+its last bits, so an angle within 3 ulps of an edge may fall on either side of it. Its per-pixel columns (`rig.diagnosis.bins.pixel_columns`) are summed over runs
 of pixels that fall in the same bin of every family (on a sweep, a run is about 30 pixels of an image row), and
 each run's sums are then added into its bin of each family: once per run, not once per pixel and family.
 

@@ -218,7 +218,7 @@ def _whole_image(u, v, h, w):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pixel_kurtosis(m4, v, nu_v, n, out):  # pragma: no cover - compiled
-    """`ShapeStatistics.pixel_kurtosis` row by row, each term in numpy's order (the same value to the last bit):
+    """`ShapeStatistics.pixel_kurtosis` row by row, each term in numpy's order (within a few ulps, tests/test_neighbour_variance.py):
     M4 / v^2 (nu - 2) (nu - 4) / nu^2, then (that n^2 / (n - 1) - 3 (2 n - 3)) / (n^2 - 3 n + 3); NaN or inf where
     numpy's arrays would give them."""
     for i in range(out.size):
