@@ -5,6 +5,7 @@ Every figure against a baseline measured in the same run (see benchmarks/__init_
 a 212x120 sweep of 30 frames a stop and one seed of the blind table (a few minutes) instead of the full 848x480 x 300
 and ten seeds (about half an hour, of which the blind table is 15-20 minutes). --repeat N runs the groups whose
 figures are single commands (commands, small) N times, each run with its own baseline, and reports the medians.
+`python -m benchmarks.table` then writes the JSON's table into docs/performance.md.
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
         if not args.keep and args.workdir is None:
             shutil.rmtree(work, ignore_errors=True)
     print(table(figures))
-    write_json(figures, args.json, {"size": vars(size), "quick": args.quick})
+    only = [g for g in GROUPS if g in want] if args.only else None
+    write_json(figures, args.json, {"size": vars(size), "quick": args.quick, "only": only, "repeat": args.repeat})
     print(f"\nfigures: {args.json}", file=sys.stderr)
     return 0 if all(f.passed is not False for f in figures) else 1
 

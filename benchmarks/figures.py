@@ -74,8 +74,32 @@ def machine() -> dict:
     import os
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    versions = {}
+    for name in ("numpy", "numba"):
+        try:
+            versions[name] = __import__(name).__version__
+        except ImportError:
+            pass
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
-            "load_average": [round(x, 2) for x in load], "max_rss_self_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+            **versions, "load_average": [round(x, 2) for x in load],
+            "max_rss_self_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def provenance() -> dict:
+    """When the figures were measured, and of which commit (git's, `+changes` when the tree differs from it)."""
+    from datetime import datetime, timezone
+
+    out = {"utc": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M")}
+    root = Path(__file__).resolve().parents[1]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                                check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True,
+                               text=True, check=True).stdout.strip()
+        out["commit"] = commit + ("+changes" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        pass
+    return out
 
 
 def median_of_runs(runs: list[list[Figure]]) -> list[Figure]:
@@ -121,6 +145,8 @@ def _fmt(x: float) -> str:
 
 
 def write_json(figures: list[Figure], path: Path, settings: dict) -> None:
-    doc = {"machine": machine(), "settings": settings,
+    """The figures, the machine, the settings and when (docs/performance.md's table is made from this file:
+    `python -m benchmarks.table`)."""
+    doc = {"machine": machine(), "measured": provenance(), "settings": settings,
            "figures": [{**asdict(f), "ratio": f.ratio} for f in figures]}
     path.write_text(json.dumps(doc, indent=2, allow_nan=True).replace("NaN", "null"))

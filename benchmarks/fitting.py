@@ -14,8 +14,8 @@ from .data import RIG
 from .figures import Figure, run_measured
 
 THREE_EFFECTS = "active+noise_floor+slant_range+outliers"
-#: s of CPU the paper's script took on the sweep on the machine issue 30's targets were stated on (the table of
-#: 2026-11-25 in docs/performance.md): a target of T s there is T / 1.10 times the script in the same run here
+#: s of CPU the paper's script took on the sweep on the machine issue 30's targets were stated on (the full run of
+#: 2026-11-25 at e280f1d): a target of T s there is T / 1.10 times the script in the same run here
 ISSUE_30_SCRIPT_S = 1.10
 
 
