@@ -277,7 +277,7 @@ class Recording:
         return out
 
     def exclude(self, label: str, why: str) -> None:
-        """Leave a readable stop out (it contradicts itself or the rest: rig.models.stop_checks); the notes say why."""
+        """Leave a readable stop out (it contradicts itself or the rest: rig.models.data.stop_checks); the notes say why."""
         if label in self._where:
             del self._where[label]
             self.skipped.append(f"stop {label!r} (left out of the fit): {why.removeprefix(f'stop {label!r}: ')}")

@@ -19,8 +19,8 @@ from protocols.recording import Recording
 
 from .diagnosis.bins import BinnedSigma, pooled_sigma, sigma_by_range
 from .models import ModelData, ModelFit, fit_power_law, load_samples
-from .models.independence import independence
-from .models.progress import ProgressCounter
+from .models.data.independence import independence
+from .models.fitting.progress import ProgressCounter
 
 #: the note a recording gives when planned stops are missing (protocols.recording.Recording.notes)
 _MISSING_STOPS = re.compile(r"^\d+ of \d+ planned stops \(missing ")
@@ -48,7 +48,7 @@ class RecordingFit:
 
 def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: float | None = None,
                   counter: ProgressCounter | None = None) -> RecordingFit:
-    """`counter`, if given, is told of the two steps: reading the recording, fitting (rig.models.progress).
+    """`counter`, if given, is told of the two steps: reading the recording, fitting (rig.models.fitting.progress).
     A window (`z_min_m`, `z_max_m`) that is inverted or keeps no pixel is a ValueError naming it (`in_window`)."""
     check_window(z_min_m, z_max_m)
     counter = counter or ProgressCounter(None, 2)
@@ -59,7 +59,7 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
         protocol = rec.protocol
         notes = recording_notes(rec)
     frames = independence(samples.stops)
-    if frames.correlated:  # the fit's errors are widened for it (rig.models.independence); say why, and the fix
+    if frames.correlated:  # the fit's errors are widened for it (rig.models.data.independence); say why, and the fix
         notes = [*notes, frames.sentence()]
     projector = samples.sources[0].projector_on if samples.sources else True
     samples = in_window(samples, z_min_m, z_max_m)

@@ -11,13 +11,13 @@ if str(ROOT) not in sys.path:
 
 import os
 
-# One worker a core (pytest_xdist_auto_num_workers below): one BLAS thread each (rig/blas_threads.py), set before
+# One worker a core (pytest_xdist_auto_num_workers below): one BLAS thread each (rig/runtime/blas_threads.py), set before
 # numpy is imported; the workers and the commands the tests start inherit it.
-from rig.blas_threads import one_blas_thread  # noqa: E402
-from rig.process_gc import collect_less_often, freeze_before_exit  # noqa: E402
+from rig.runtime.blas_threads import one_blas_thread  # noqa: E402
+from rig.runtime.process_gc import collect_less_often, freeze_before_exit  # noqa: E402
 
 one_blas_thread()
-collect_less_often()  # as the `rig` program does (rig/process_gc.py): the workers' collector runs less often
+collect_less_often()  # as the `rig` program does (rig/runtime/process_gc.py): the workers' collector runs less often
 
 import pytest
 
@@ -61,7 +61,7 @@ def pytest_collection_modifyitems(config, items):
 
 def pytest_unconfigure(config):
     """The session is over (in each xdist worker and in the controller): what it made is frozen, so the
-    interpreter's shutdown collections pass over nothing (rig/process_gc.py)."""
+    interpreter's shutdown collections pass over nothing (rig/runtime/process_gc.py)."""
     freeze_before_exit()
 
 

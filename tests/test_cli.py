@@ -24,11 +24,11 @@ def test_console_script_is_installed_and_runs():
 def test_the_rig_program_sets_the_collector_and_leaves_it_frozen_also_after_an_error(monkeypatch, capsys):
     """`rig.cli.entry` (what the console script runs) collects the first generation every YOUNG_THRESHOLD objects
     and freezes every object when `main` ends, however it ends (argparse's exit here), so the interpreter's shutdown
-    collections pass over none (rig/process_gc.py)."""
+    collections pass over none (rig/runtime/process_gc.py)."""
     import gc
 
     from rig.cli import entry
-    from rig.process_gc import YOUNG_THRESHOLD
+    from rig.runtime.process_gc import YOUNG_THRESHOLD
 
     monkeypatch.setattr(sys, "argv", ["rig", "fit"])
     before = gc.get_threshold()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.models.progress import WorkProgress
+from rig.models.fitting.progress import WorkProgress
 from rig.reports.work_progress import WorkProgressLine
 
 pytestmark = pytest.mark.slow

@@ -1,4 +1,4 @@
-"""The position and brightness covariates, made in compiled passes (`rig.models.covariates.covariate_rows`), are
+"""The position and brightness covariates, made in compiled passes (`rig.models.data.covariates.covariate_rows`), are
 numpy's formulas: the normalised ray, rho^2, the incidence cosine on each stop's wall plane and the IR at the nearest
 pixel, for whole stops, scattered rows and rows in no order.
 
@@ -111,7 +111,7 @@ def test_the_smoothed_brightness_is_scipys_gaussian_filter(shape):
     the kernel (reflected many times over). Where no set pixel lies within reach both give 0: exactly."""
     from scipy.ndimage import gaussian_filter
 
-    from rig.models.covariates import smoothed
+    from rig.models.data.covariates import smoothed
 
     rng = np.random.default_rng(shape[0])
     image = rng.lognormal(3.0, 1.0, shape).astype(np.float32)
@@ -127,7 +127,7 @@ def test_the_smoothed_brightness_is_scipys_gaussian_filter(shape):
 def test_the_pixel_noise_of_inverse_range_is_numpys_mean_by_its_definition():
     """The drift's pixel-noise term (`_noise_of_inverse_range`, one compiled pass): the pixels with n > 1 and a finite
     variance and range, and their sum of s2 / Z^4, against numpy."""
-    from rig.models.covariates import _noise_of_inverse_range
+    from rig.models.data.covariates import _noise_of_inverse_range
 
     rng = np.random.default_rng(12)
     count = rng.integers(0, 12, 5000).astype(np.uint32)

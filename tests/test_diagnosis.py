@@ -103,7 +103,7 @@ def test_held_out_score_prefers_the_true_model(tmp_path, capsys):
 def test_a_coarse_unit_the_approximate_conditioning_missed_ends_within_noise(tmp_path):
     """Seed 1004 (a 1.39 mm unit, sigma 0.25 q at the near stop): with the rounded variance conditioned
     approximately on the pixel's mean, the near stop read 1 % above the model and the verdict was 'beyond
-    noise: sigma by brightness'; conditioned exactly (rig/models/rounding_table.py) it is within noise."""
+    noise: sigma by brightness'; conditioned exactly (rig/models/data/rounding_table.py) it is within noise."""
     t = run_trial("coarse_depth_unit", 1004, tmp_path)
     assert t.correct and t.within_noise, (t.path, t.error_after_pct, t.noise_pct, t.worst)
 
@@ -114,9 +114,9 @@ def test_an_effect_that_cannot_be_fitted_is_named_with_its_reason(tmp_path):
     from rig.diagnosis import diagnose
     from rig.diagnosis.text import render_text
     from rig.models import Catalogue, ModelData
-    from rig.models.effects import Effect
-    from rig.models.parameters import Param
-    from rig.models.prediction import EffectStage
+    from rig.models.effects.builtin import Effect
+    from rig.models.parts.parameters import Param
+    from rig.models.parts.prediction import EffectStage
 
     class Fragile(Effect):
         name = "fragile"

@@ -20,7 +20,7 @@ import pytest
 
 import fakes.effects
 from rig.models import Catalogue, Effect, EffectFileError, EffectStage, ModelData, Param, active, register
-from rig.models.component import registered_by
+from rig.models.parts.component import registered_by
 
 TILT = 0.8  # the simulated beam's fall-off down the image, per unit of y = (v - cy) / fy
 
@@ -120,7 +120,7 @@ def test_a_name_registered_twice_in_one_file_is_an_error_naming_both(tmp_path, s
 
 def test_registering_a_built_in_name_again_is_an_error_naming_both():
     namespace = {"__name__": "rig.models.another", "Effect": Effect, "EffectStage": EffectStage, "register": register}
-    with pytest.raises(EffectFileError, match=r"'noise_floor' registered twice: by NoiseFloor \(rig/models/effects\.py:\d+\) "
+    with pytest.raises(EffectFileError, match=r"'noise_floor' registered twice: by NoiseFloor \(rig/models/effects/builtin\.py:\d+\) "
                                               r"and by Floor2"):
         exec("@register\nclass Floor2(Effect):\n    name = 'noise_floor'\n    stage = EffectStage.DISPARITY\n",
              namespace)
@@ -128,12 +128,12 @@ def test_registering_a_built_in_name_again_is_an_error_naming_both():
 
 def test_every_built_in_effect_is_found_by_name_without_an_export_list():
     import rig.models
-    import rig.models.effects
+    import rig.models.effects.builtin
 
     for name, e in rig.models.EFFECTS.items():
-        assert getattr(rig.models, name) is e and getattr(rig.models.effects, name) is e
+        assert getattr(rig.models, name) is e and getattr(rig.models.effects.builtin, name) is e
         assert getattr(rig.models, type(e).__name__) is type(e)
-        assert e.defined_at.startswith("rig/models/effects.py:")
+        assert e.defined_at.startswith("rig/models/effects/builtin.py:")
     with pytest.raises(AttributeError):
         rig.models.no_such_effect  # noqa: B018
 

@@ -2,7 +2,7 @@
 
 The evaluator is a second, numpy-only implementation of sigma: it must give rig's own prediction
 (`Model.predict_noise`) on every pixel-stop of a recording to 1e-9, for every term it knows, and its standard error
-must be the delta method of rig's analytic derivatives (`rig.models.tangents`). The file is checked against
+must be the delta method of rig's analytic derivatives (`rig.models.parts.tangents`). The file is checked against
 docs/noise-model.schema.json by jsonschema, the reference validator, not by code of ours.
 """
 
@@ -22,8 +22,8 @@ from cli_in_process import rig_in_process
 from protocols.recording import Recording
 
 from rig.models import load_samples, parse_model
-from rig.models.result import ModelFit
-from rig.models.tangents import Tangents
+from rig.models.parts.result import ModelFit
+from rig.models.parts.tangents import Tangents
 from rig.noise_model import TERMS, NoiseModel, NoiseModelError
 from rig.models.export import noise_model_document
 

@@ -91,12 +91,12 @@ def test_pooled_sigma_per_stop():
 
 @pytest.mark.numeric
 def test_on_many_pixels_newton_starts_from_a_subsample_and_ends_at_the_paper_s_maximum():
-    """Above 4 x 64 x 1024 pixels lambda is first solved on every 64th (rig.models.closed_form.STRIDE); the maximum is
+    """Above 4 x 64 x 1024 pixels lambda is first solved on every 64th (rig.models.fitting.closed_form.STRIDE); the maximum is
     still the paper's, as scipy's bounded scalar minimiser of the profile likelihood finds it (no Newton, no
     shared code), and the one Newton from the fixed start finds."""
     from scipy.optimize import minimize_scalar
 
-    from rig.models import closed_form
+    from rig.models.fitting import closed_form
 
     rng = np.random.default_rng(3)
     rows = 300_000

@@ -1,4 +1,4 @@
-"""The range's moments near the depth format's end (rig.models.file_physics): the series `_series` against scipy's
+"""The range's moments near the depth format's end (rig.models.effects.file_physics): the series `_series` against scipy's
 adaptive quadrature of the same integral (a generator that shares no formula with either of rig's two methods),
 its derivatives against its own differences, and `_transform` taking it where it should."""
 
@@ -11,7 +11,7 @@ import pytest
 from scipy import integrate
 from scipy.stats import norm
 
-from rig.models.file_physics import NEAR_LIMIT_SIGMA, SERIES_MAX_R, _series, _transform, _NODES, _WEIGHTS
+from rig.models.effects.file_physics import NEAR_LIMIT_SIGMA, SERIES_MAX_R, _series, _transform, _NODES, _WEIGHTS
 
 FB = 30.0  # f b, px m
 Z_MAX = 65535 * 5e-5  # the deepest range a 0.05 mm depth unit holds, m
@@ -46,7 +46,7 @@ def _by_scipy(z: float, v: float) -> tuple[float, float, float]:
 def test_the_series_gives_the_moments_an_independent_quadrature_gives(r, a):
     """Two approximations of the same integrals: what separates them is the series' truncation and the quadrature's
     requested accuracy (epsrel 1e-13), far above the rounding of either (a few ulps; 2e-15 of the variance seen).
-    The variance: the series' terms beyond SERIES_TERMS are below 1e-12 of it (rig.models.file_physics), the
+    The variance: the series' terms beyond SERIES_TERMS are below 1e-12 of it (rig.models.effects.file_physics), the
     quadrature's within 1e-13, so 1.1e-12 (abs=0: pytest.approx's own 1e-12 would be 4e-9 of a 2.5e-4 m^2 variance).
     The kept share: erfc in closed form (within 2 ulps) against the quadrature's 1e-13. The cumulant, a difference of
     moments, is judged against var^2, with room for a truncation the module does not state (2.1e-12 var^2 seen at

@@ -1,4 +1,4 @@
-"""The likelihood's analytic gradient (`rig.models.tangents`) against central differences of the likelihood
+"""The likelihood's analytic gradient (`rig.models.parts.tangents`) against central differences of the likelihood
 itself, for every built-in effect and every empirical term, alone and composed.
 
 The differences are fourth-order (f(x +- h), f(x +- 2h)), with h 1e-4 of each parameter's scale, on recordings
@@ -16,13 +16,13 @@ import pytest
 from simrig import record_perpendicular
 
 from rig.models import parse_model
-from rig.models.closed_form import power_law_mle
-from rig.models.component import EFFECTS
-from rig.models.data import ModelData
-from rig.models.empirical import SHAPES
-from rig.models.likelihood import model_loglik_gradient
-from rig.models.parameters import Param
-from rig.models.tangents import analytic
+from rig.models.fitting.closed_form import power_law_mle
+from rig.models.parts.component import EFFECTS
+from rig.models.data.model_data import ModelData
+from rig.models.effects.empirical import SHAPES
+from rig.models.fitting.likelihood import model_loglik_gradient
+from rig.models.parts.parameters import Param
+from rig.models.parts.tangents import analytic
 
 #: analytic derivatives against differences, two computations of each: run again on the other floating-point paths
 pytestmark = pytest.mark.numeric
@@ -132,7 +132,7 @@ def test_the_stop_near_the_formats_end_takes_the_quadrature(fine):
     assert (a > -6.0).sum() > 10 and math.isclose(z_max, 3.27675)
 
 
-#: a user's effect at each stage, as a function of the covariates (`rig.models.user_effects`)
+#: a user's effect at each stage, as a function of the covariates (`rig.models.effects.user_effects`)
 USER_STAGES = {
     "illumination": (lambda c, n: 1.0 / np.maximum(c.cos_off_axis, 0.1) ** n, Param("n", 1.5, 0.0, 10.0, "1", "power")),
     "image_noise": (lambda c, r: r * c.z_m**2, Param("r", 0.05, 0.0, 10.0, "1", "ratio at 1 m")),
@@ -146,7 +146,7 @@ USER_STAGES = {
 def test_a_users_effect_has_the_likelihoods_gradient_at_every_stage(fine, stage):
     """A user's effect has no formula rig knows: its own derivative is the function's central differences (the
     function alone), carried by the chain rule like any other's."""
-    from rig.models.user_effects import UserEffect
+    from rig.models.effects.user_effects import UserEffect
 
     fn, param = USER_STAGES[stage]
 
@@ -174,7 +174,7 @@ def test_a_users_effect_has_the_likelihoods_gradient_at_every_stage(fine, stage)
 def test_the_outlier_rows_chain_rule_against_differences_on_every_branch():
     """`_outlier_row`'s derivatives in var0, fraction and width against fourth-order differences of its own value,
     on rows where the mismatches' lower end is -w, the format's end, and (wide mismatches far out) nearly w."""
-    from rig.models import effects
+    from rig.models.effects import builtin as effects
 
     # the Python of the row: compiled on its own it is a second copy of the kernel it is inlined into (1.3 s to build)
     _outlier_row = getattr(effects._outlier_row, "py_func", effects._outlier_row)

@@ -1,4 +1,4 @@
-"""Grouped fits (rig.models.grouping) against fits on every pixel: the same parameters within 0.1 standard error.
+"""Grouped fits (rig.models.fitting.grouping) against fits on every pixel: the same parameters within 0.1 standard error.
 
 The recordings are made by the real runner from the fake camera, at 424x240 (tiles of 10x10 pixels, each
 replaced by 7 nodes) and 318x180 (7x7): a wall tilted 35 degrees, where range changes across every tile, a
@@ -15,8 +15,8 @@ import pytest
 from protocols import Runner, perpendicular, tilted
 from rig.devices import open_devices
 from rig.models import ModelData, parse_model
-from rig.models.grouping import GroupedData, group, tile_size, whole_stops
-from rig.models.optimise import _standard_errors, fit_data
+from rig.models.fitting.grouping import GroupedData, group, tile_size, whole_stops
+from rig.models.fitting.optimise import _standard_errors, fit_data
 
 pytestmark = pytest.mark.slow
 
@@ -94,7 +94,7 @@ def test_nodes_carry_the_weights_of_the_pixels_they_stand_for(sweep_data):
     for what is constant within a tile. Exact in exact arithmetic; rounded, both sums add the same k positive
     weights (the nodes' as tile sums times quadrature weights summing to 1) in other orders: within 2 (k + 10) u,
     1.3e-11 for these 57,240 pixels a stop (5.6e-16 seen; was 1e-9)."""
-    from rig.models.likelihood import likelihood_weights
+    from rig.models.fitting.likelihood import likelihood_weights
 
     g = fit_data(parse_model("active"), sweep_data)
     a, b, kw, _ = likelihood_weights(sweep_data)
@@ -121,12 +121,12 @@ def test_every_node_array_has_a_value_per_node(sweep_data, coarse_unit_data):
 
 @pytest.mark.numeric
 def test_stops_left_out_share_the_whole_datas_nodes_and_statistics(sweep_data):
-    """`rig.models.grouping.whole_stops` (the held-out score's parts): the nodes of the kept stops and the statistics carried
+    """`rig.models.fitting.grouping.whole_stops` (the held-out score's parts): the nodes of the kept stops and the statistics carried
     over from the whole data give the same fit as measuring and grouping the kept stops afresh (within 0.1 SE), and
     the same data-only constant and fill by stop."""
     from scipy.special import gammaln
 
-    from rig.models.likelihood import gamma_constant
+    from rig.models.fitting.likelihood import gamma_constant
 
     m = parse_model("active+noise_floor+outliers")
     fit_data(m, sweep_data)  # the whole data's nodes, which whole_stops hands on

@@ -13,7 +13,7 @@ from drivers.folder import MANIFEST_NAME
 from protocols.folder_import import import_folder
 from protocols.recording import Recording
 from rig.cli import main
-from rig.models.independence import Independence, independence, pooled_lag1
+from rig.models.data.independence import Independence, independence, pooled_lag1
 
 pytestmark = pytest.mark.slow
 

@@ -103,7 +103,7 @@ def test_blind_diagnosis_with_saturated_ir_names_the_brightness_effect(tmp_path)
     (at full size, 106 px and 100 frames, only 3 of 10 seeds end within noise: docs/models.md)."""
     from rig.diagnosis import diagnose, render_text
     from rig.models import ModelData
-    from rig.models.covariates import brightness_left_out
+    from rig.models.data.covariates import brightness_left_out
     from rig.simulation.scenarios import expected, hidden_scenario, record_scenario
 
     sc = hidden_scenario(1000, "ambient_saturated_ir", width=27, frames=40)

@@ -94,8 +94,8 @@ def test_the_empirical_shape_is_scipys_pchip():
     interval, the two agree within 85 u S (8 u S seen here)."""
     from scipy.interpolate import PchipInterpolator
 
-    from rig.models.empirical import _smooth
-    from rig.models.pchip import pchip_slopes
+    from rig.models.effects.empirical import _smooth
+    from rig.models.effects.pchip import pchip_slopes
 
     u = np.finfo(np.float64).eps / 2
     rng = np.random.default_rng(1)

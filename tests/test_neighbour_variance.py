@@ -11,7 +11,7 @@ import pytest
 from scipy.ndimage import uniform_filter, uniform_filter1d
 
 from rig.models import ModelData
-from rig.models.shape_statistics import KURTOSIS_WINDOW_PX
+from rig.models.data.shape_statistics import KURTOSIS_WINDOW_PX
 
 EPS = np.finfo(np.float64).eps
 U = EPS / 2

@@ -1,4 +1,4 @@
-"""`rig.models.order_statistics` gives numpy's own quantiles (linear method) and medians, bit for bit: for float32 and
+"""`rig.models.data.order_statistics` gives numpy's own quantiles (linear method) and medians, bit for bit: for float32 and
 float64 values of every kind of spread, odd and even counts, ties, a constant array and NaN (the last two handed
 back to numpy or answered directly).
 
@@ -10,7 +10,7 @@ product and an exact subtraction (as numpy forms it for the linear method), so i
 import numpy as np
 import pytest
 
-from rig.models.order_statistics import SMALL, _order_statistics, median, quantiles
+from rig.models.data.order_statistics import SMALL, _order_statistics, median, quantiles
 
 
 def _arrays(rng):

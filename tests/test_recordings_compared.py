@@ -12,9 +12,9 @@ import pytest
 from cli_in_process import rig_in_process
 from simrig import record_perpendicular
 
-from rig.comparison import differences, scatter
-from rig.many import fit_for_comparison
-from rig.recording_fits import FitJob
+from rig.recordings.comparison import differences, scatter
+from rig.fleet.many import fit_for_comparison
+from rig.recordings.recording_fits import FitJob
 
 STOPS = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
 
@@ -112,8 +112,8 @@ def test_two_units_are_alike_and_projector_off_changes_the_law(runs, tmp_path):
 
 
 def test_a_model_that_does_not_fit_the_runs_is_named_in_the_verdict():
-    from rig.comparison import misfit_caution, repeatability_verdict
-    from rig.recording_fits import RecordingResult
+    from rig.recordings.comparison import misfit_caution, repeatability_verdict
+    from rig.recordings.recording_fits import RecordingResult
 
     def run(i: int, verdict: str, pct: float) -> RecordingResult:
         return RecordingResult(f"run{i}.h5", "power_law", values={"k": 0.002 + 1e-6 * i}, errors={"k": 1e-6}, free=["k"],

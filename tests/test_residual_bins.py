@@ -134,7 +134,7 @@ def test_a_bins_sums_are_the_pooled_quantities_by_their_definitions():
     """compare_bins's sums per group, against numpy's own sums of each quantity as `pixel_columns` defines it:
     pixels, degrees of freedom, M2, nu x predicted variance, and the kurtosis pooling sums of the usable pixels."""
     from rig.diagnosis.bins import BinSums
-    from rig.models.prediction import Prediction
+    from rig.models.parts.prediction import Prediction
 
     rng = np.random.default_rng(5)
     d = _data(rng)

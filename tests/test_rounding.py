@@ -1,4 +1,4 @@
-"""Exact rounding (rig.models.rounding) against simulated rounded normals, which share no formula with it:
+"""Exact rounding (rig.models.data.rounding) against simulated rounded normals, which share no formula with it:
 numpy draws normals, rounds them, drops the pixels whose samples are all equal (as `ModelData` does), and
 the per-pixel sample variance is compared with the prediction made from the same measured mean offset the
 model sees. Tolerances are the simulation's own standard error."""
@@ -6,8 +6,8 @@ model sees. Tolerances are the simulation's own standard error."""
 import numpy as np
 import pytest
 
-from rig.models.rounding import expected_sample_variance, grid_offset, rounded_moments
-from rig.models.rounding_table import F_GRID, MAX_CANCELLATION, N_GRID, S_GRID, TABLE_FILE, build, resample, table
+from rig.models.data.rounding import expected_sample_variance, grid_offset, rounded_moments
+from rig.models.data.rounding_table import F_GRID, MAX_CANCELLATION, N_GRID, S_GRID, TABLE_FILE, build, resample, table
 
 PIXELS = 20_000
 
@@ -49,7 +49,7 @@ def test_expected_sample_variance_matches_simulated_rounded_normals(s, n):
 @pytest.mark.numeric
 def test_shipped_table_is_what_the_sums_give():
     """The table in the package is the generating-function computation's, at a few grid points (regenerate it
-    with `python -m rig.models.rounding_table` when the grids change)."""
+    with `python -m rig.models.data.rounding_table` when the grids change)."""
     assert TABLE_FILE.exists()
     on_k, on_f = table()
     assert on_f.shape == (len(S_GRID), len(N_GRID), len(F_GRID))

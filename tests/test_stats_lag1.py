@@ -52,9 +52,9 @@ def test_lag1_sums_are_exact_against_numpy_with_missing_data(seed):
 
 
 def test_independent_frames_pool_to_zero_correlation_and_smoothed_ones_do_not():
-    """The pooled lag-1 correlation (rig.models.independence) is about 0 for independent frames and about
+    """The pooled lag-1 correlation (rig.models.data.independence) is about 0 for independent frames and about
     1 - alpha for exponential smoothing out_t = alpha in_t + (1 - alpha) out_{t-1}."""
-    from rig.models.independence import pooled_lag1
+    from rig.models.data.independence import pooled_lag1
 
     rng = np.random.default_rng(5)
     n, h, w, alpha = 40, 30, 40, 0.4

@@ -1,4 +1,4 @@
-"""The Newton-decrement stop (rig.models.stopping) against a likelihood with a closed-form optimum: a normal
+"""The Newton-decrement stop (rig.models.fitting.stopping) against a likelihood with a closed-form optimum: a normal
 sample's mean and log standard deviation, which no part of rig computes."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from rig.models.stopping import STOP_NATS, NewtonStop, inverse_hessian
+from rig.models.fitting.stopping import STOP_NATS, NewtonStop, inverse_hessian
 
 N = 1_000_000
 
@@ -27,7 +27,7 @@ def _normal_sample() -> tuple[float, float]:
 
 def _fit(stopped: bool) -> tuple[np.ndarray, int, NewtonStop | None]:
     """L-BFGS-B on -loglik / scale in (mu, ln sigma), from a start far from the optimum, with the settings
-    `rig.models.optimise` uses, and the Newton stop if `stopped`: (optimum, evaluations, the stop)."""
+    `rig.models.fitting.optimise` uses, and the Newton stop if `stopped`: (optimum, evaluations, the stop)."""
     x = _draws()
     mean, var = _normal_sample()
     scale = N * (0.5 * math.log(2 * math.pi * var) + 0.5) + 1.0

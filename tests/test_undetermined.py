@@ -1,4 +1,4 @@
-"""Lambda from fewer than three ranges, or from a span under 1.5 x, is NOT DETERMINED (rig.models.determinacy):
+"""Lambda from fewer than three ranges, or from a span under 1.5 x, is NOT DETERMINED (rig.models.data.determinacy):
 said with the reason and the fix by fit, compare and diagnose, never called "within noise", exit status 3."""
 
 from pathlib import Path
@@ -7,7 +7,7 @@ import pytest
 from cli_in_process import rig_in_process as rig
 
 from rig.models import ModelData
-from rig.models.determinacy import lambda_status
+from rig.models.data.determinacy import lambda_status
 from simrig import record_perpendicular
 
 pytestmark = pytest.mark.slow
@@ -73,7 +73,7 @@ def test_a_stops_range_is_its_median_whether_made_here_or_given():
     ranges as numpy's median of the stop's positive finite ranges, for flat, tilted and NaN-holding stops."""
     import numpy as np
 
-    from rig.models.determinacy import distinct_ranges_m
+    from rig.models.data.determinacy import distinct_ranges_m
 
     rng = np.random.default_rng(5)
     flat = [rng.normal(z, 0.002, 400 + i) for i, z in enumerate((0.5, 0.75, 1.0, 1.6))]  # odd and even counts

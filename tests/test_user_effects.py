@@ -9,10 +9,10 @@ import pytest
 from rig.cli import main
 from rig.models import Catalogue, ModelData
 from rig.models.catalogue import ENTRY_POINT_GROUP
-from rig.models.user_effects import EffectFileError, load_effects
+from rig.models.effects.user_effects import EffectFileError, load_effects
 from rig.simulation.scenarios import hidden_scenario, record_scenario
 
-#: the built-in noise floor (rig/models/effects.py), written again as a user would
+#: the built-in noise floor (rig/models/effects/builtin.py), written again as a user would
 MY_FLOOR = '''
 from rig.models import Param, effect
 

@@ -8,9 +8,9 @@ from dataclasses import replace
 
 import numpy as np
 
-import rig.models.optimise as optimise
+import rig.models.fitting.optimise as optimise
 from rig.models import ModelData
-from rig.models.grouping import whole_stops
+from rig.models.fitting.grouping import whole_stops
 from rig.models.parse import parse_model
 from simrig import record_perpendicular
 
@@ -49,7 +49,7 @@ def test_a_warm_refit_reaches_the_cold_refits_optimum_in_fewer_evaluations(tmp_p
         plain_calls = calls[0]
         names = [n for n, _ in model.free()]
         gap = np.array([abs(warm.values[n] - cold.values[n]) for n in names]) / se
-        # both stop within sqrt(4 STOP_NATS) = 0.002 standard error of the fold's optimum (rig.models.stopping)
+        # both stop within sqrt(4 STOP_NATS) = 0.002 standard error of the fold's optimum (rig.models.fitting.stopping)
         assert np.all(gap < 0.01), dict(zip(names, gap))
         assert abs(warm.loglik - cold.loglik) < 1e-4 * max(1.0, math.sqrt(len(train)))
         assert warm_calls < plain_calls < cold_calls, (warm_calls, plain_calls, cold_calls)

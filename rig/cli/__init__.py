@@ -15,10 +15,10 @@ import sys
 import threading
 from typing import TextIO
 
-from ..blas_threads import one_blas_thread
-from ..process_gc import collect_less_often, freeze_before_exit
+from ..runtime.blas_threads import one_blas_thread
+from ..runtime.process_gc import collect_less_often, freeze_before_exit
 
-one_blas_thread()  # before anything imports numpy (rig/blas_threads.py says why)
+one_blas_thread()  # before anything imports numpy (rig/runtime/blas_threads.py says why)
 
 from drivers.errors import DeviceError, FolderImportError
 
@@ -72,7 +72,7 @@ def paper_windows_main(argv: list[str]) -> int:
 
 def entry() -> int:
     """The `rig` program (pyproject.toml's [project.scripts]): `main` on the process's own arguments, with Python's
-    collector set for a process that ends when the command does (`rig.process_gc`: collected less often, and
+    collector set for a process that ends when the command does (`rig.runtime.process_gc`: collected less often, and
     frozen before the interpreter's shutdown, whose collections over numba's objects cost 0.4-0.6 s of CPU)."""
     collect_less_often()
     try:
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     from protocols.recording_errors import RecordingError
     from protocols.run_errors import RunError
 
-    from ..effect_errors import EffectFileError
+    from ..models.parts.effect_errors import EffectFileError
 
     from protocols.disk_space import is_disk_full, is_storage_failure
 

@@ -76,7 +76,7 @@ def _model_notes(model, d) -> list[str]:
 def cmd_fit(args: argparse.Namespace) -> int:
     from ..analysis import fit_recording
     from ..diagnosis import headline
-    from ..models.progress import ProgressCounter
+    from ..models.fitting.progress import ProgressCounter
 
     check_window(args)
     _refuse_plot_format(args.plot)
@@ -129,7 +129,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def _fit_model(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
     from ..diagnosis.scores import held_out_folds
-    from ..models.progress import ProgressCounter
+    from ..models.fitting.progress import ProgressCounter
 
     model = parse_model_option(args.model, catalogue_of(args))
     with progress_line(args, "rig fit") as progress:
@@ -169,7 +169,7 @@ def _fit_model(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     from ..diagnosis import headline, held_out_nll
     from ..diagnosis.scores import held_out_folds
-    from ..models.progress import ProgressCounter
+    from ..models.fitting.progress import ProgressCounter
 
     check_window(args)
     if len(args.recording) > 1 or Path(args.recording[0]).is_dir():
@@ -225,7 +225,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose, render_text
-    from ..models.progress import WorkProgress
+    from ..models.fitting.progress import WorkProgress
 
     cat = catalogue_of(args)
     out = Path(args.out) if args.out else Path(args.recording).with_suffix("").with_name(Path(args.recording).stem + "-diagnosis")

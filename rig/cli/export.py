@@ -27,8 +27,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     from protocols.recording import Recording
 
     from ..diagnosis import headline
-    from ..models.prediction import EffectStage
-    from ..models.progress import ProgressCounter
+    from ..models.parts.prediction import EffectStage
+    from ..models.fitting.progress import ProgressCounter
     from ..noise_model import TERMS, NoiseModel
     from ..models.export import noise_model_document
     from ..reports.sigma_map import map_problem, parse_ranges, write_sigma_maps

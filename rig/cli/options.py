@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .usage import UsageError
 
-#: the exit status of a command that worked but fitted a lambda the data do not determine (rig.models.determinacy)
+#: the exit status of a command that worked but fitted a lambda the data do not determine (rig.models.data.determinacy)
 EXIT_UNDETERMINED = 3
 
 QUIET = -1

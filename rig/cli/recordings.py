@@ -1,6 +1,6 @@
 """Commands over several recordings: `rig compare a.h5 b.h5 ...` (two cameras, projector on against off) and
 `rig repeatability run1.h5 run2.h5 ...` (are the errors honest?). One model is fitted to each recording in a local
-process pool, or on a Dask cluster (`--scheduler`, `rig.executors`); `rig.comparison` compares the fits."""
+process pool, or on a Dask cluster (`--scheduler`, `rig.fleet.executors`); `rig.recordings.comparison` compares the fits."""
 
 from __future__ import annotations
 
@@ -33,8 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def expand(paths: list[str]) -> list[str]:
-    """Recordings as given; a folder stands for its *.h5 files (`rig.many.recordings_in`)."""
-    from ..many import recordings_in
+    """Recordings as given; a folder stands for its *.h5 files (`rig.fleet.many.recordings_in`)."""
+    from ..fleet.many import recordings_in
 
     out: list[str] = []
     for p in paths:
@@ -49,11 +49,11 @@ def expand(paths: list[str]) -> list[str]:
 
 
 def fit_each(args: argparse.Namespace, paths: list[str], what: str):
-    """Every recording fitted with --model (rig.recording_fits), in input order, with progress on stderr."""
-    from ..executors import run_each
-    from ..models.progress import ProgressCounter
-    from ..many import fit_for_comparison
-    from ..recording_fits import FitJob
+    """Every recording fitted with --model (rig.recordings.recording_fits), in input order, with progress on stderr."""
+    from ..fleet.executors import run_each
+    from ..models.fitting.progress import ProgressCounter
+    from ..fleet.many import fit_for_comparison
+    from ..recordings.recording_fits import FitJob
     from .shared import catalogue_of, parse_model_option, progress_line
 
     if args.model:
@@ -99,7 +99,7 @@ def _runs(paths: list[str]):
 
 def cmd_compare_recordings(args: argparse.Namespace) -> int:
     """`rig compare a.h5 b.h5 [...]`: the same model fitted to each, and every pair's differences judged."""
-    from ..comparison import differences, pair_verdict
+    from ..recordings.comparison import differences, pair_verdict
     from ..reports.comparison_plots import plot_overlay
     from ..reports.comparison_text import render_compare
     from ..reports.report_pages import write_compare_page
@@ -124,7 +124,7 @@ def cmd_compare_recordings(args: argparse.Namespace) -> int:
         extra = [plot_overlay(results, Path(args.report) / "compare-overlay.png")]
         page = write_compare_page(results, pairs, extra, args.report, text, _runs(paths))
     if args.json:
-        print(dumps({"schema": "rig.comparison/1", "command": "compare", "fits": [_fit_json(r) for r in results],
+        print(dumps({"schema": "rig.recordings.comparison/1", "command": "compare", "fits": [_fit_json(r) for r in results],
                      "differences": [[_difference_json(d) for d in p] for p in pairs],
                      "verdicts": [pair_verdict(p) for p in pairs], "plots": [str(p) for p in plots],
                      "report": str(page) if page else None}))
@@ -139,7 +139,7 @@ def cmd_compare_recordings(args: argparse.Namespace) -> int:
 
 def cmd_repeatability(args: argparse.Namespace) -> int:
     """`rig repeatability run1.h5 run2.h5 ...`: the run-to-run scatter of each parameter against its errors."""
-    from ..comparison import repeatability_verdict, scatter
+    from ..recordings.comparison import repeatability_verdict, scatter
     from ..reports.comparison_plots import plot_runs
     from ..reports.comparison_text import render_repeatability
     from ..reports.report_pages import write_repeatability_page
@@ -162,7 +162,7 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
         extra = [plot_runs(results, scatters, Path(args.report) / "repeatability-runs.png")]
         page = write_repeatability_page(results, scatters, extra, args.report, text, _runs(paths))
     if args.json:
-        print(dumps({"schema": "rig.comparison/1", "command": "repeatability", "fits": [_fit_json(r) for r in results],
+        print(dumps({"schema": "rig.recordings.comparison/1", "command": "repeatability", "fits": [_fit_json(r) for r in results],
                      "scatter": [asdict(s) | {"honest": s.honest, "sentence": s.sentence()} for s in scatters],
                      "verdicts": [repeatability_verdict(scatters, results)], "plots": [str(p) for p in plots],
                      "report": str(page) if page else None}))
@@ -185,7 +185,7 @@ def _difference_json(d) -> dict:
 
 def fit_many_command(args: argparse.Namespace) -> int:
     """rig fit --many DIR: the paper's fit of every recording in a folder, in a pool of processes."""
-    from ..many import fit_many, recordings_in
+    from ..fleet.many import fit_many, recordings_in
     from ..reports.result_json import dumps
 
     folder = Path(args.recording)

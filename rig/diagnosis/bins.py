@@ -16,9 +16,9 @@ import numpy as np
 from numba import njit
 
 from ..models import ModelData, Prediction
-from ..models.data import RANGE_BIN_M, range_bin_index
-from ..models.group_sums import group_sums
-from ..models.shape_statistics import pooled_from_sums
+from ..models.data.model_data import RANGE_BIN_M, range_bin_index
+from ..models.data.group_sums import group_sums
+from ..models.data.shape_statistics import pooled_from_sums
 
 RADIUS_EDGES = (0.0, 0.3, 0.6, np.inf)
 MIN_PIXELS_PER_BIN = 20
@@ -56,7 +56,7 @@ def pixel_columns(nu_i, m2_i, v, k4_i, has_k4, use, beta_i, n_i, g_shared):  # p
     var_pred (`v`), the weight, n excess_pred and n where the pixel's kurtosis is usable (`use`); weight^2 (2 / nu)
     shared and weight^2 / n shared for the sampling error; the sharing factor; and the pooling sums of the usable
     pixels' kurtosis estimate b (`beta_i`) with weight w = n (count, w, w b, w^2, w^2 b, w^2 b^2). Noise shared by
-    neighbouring pixels (a frame-mean gain A = `g_shared` > 1, rig.models.empirical) makes their variances
+    neighbouring pixels (a frame-mean gain A = `g_shared` > 1, rig.models.effects.empirical) makes their variances
     co-vary: for a Gaussian-shaped correlation, the sum over neighbours of rho^2 is about (A - 1) / 2."""
     shared = max(1.0 + (g_shared - 1.0) / 2.0, 1.0)
     weight = nu_i * v

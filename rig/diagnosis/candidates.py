@@ -1,7 +1,7 @@
 """Candidate effects, ranked by evidence: the drop in BIC and the likelihood-ratio p-value.
 
 An effect is significant when BIC falls by more than 10 (very strong evidence) and p < 0.001.
-On data large enough to be grouped (`rig.models.grouping`), each candidate is compared with the model it extends on
+On data large enough to be grouped (`rig.models.fitting.grouping`), each candidate is compared with the model it extends on
 the candidate's grouped nodes, both log-likelihoods of the same nodes, not every pixel's: that took a pass over all
 of them per candidate (0.2-0.4 s each on a full sweep; its diagnosis 30.9-33.3 -> 22.2-23.8 s of CPU). The
 statistics stay every pixel's within a hundredth of their own sampling spread (tests/test_grouping.py; on the full
@@ -18,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..models import Catalogue, Effect, Model, ModelData, ModelFit, likelihood_ratio
-from ..models.optimise import loglik_on_nodes_of
+from ..models.fitting.optimise import loglik_on_nodes_of
 from ..models.parallel import fit_models
-from ..models.progress import ProgressCounter
+from ..models.fitting.progress import ProgressCounter
 
 SIGNIFICANT_DBIC = -10.0
 SIGNIFICANT_P = 1e-3

@@ -17,7 +17,7 @@ family of statistics the model predicts, each bin against its own sampling error
   frame mean by stop (time): the variance over frames of the frame's mean of 1/z
       predicted: sum(var / Z^4) / n_valid^2 from independent pixels, plus any common wander the
       model has (drift); z = ln(measured / predicted) / sqrt(2 / (frames - 1))
-  lag-1 correlation by stop: the frames' pooled lag-1 correlation (rig.models.independence)
+  lag-1 correlation by stop: the frames' pooled lag-1 correlation (rig.models.data.independence)
       predicted: 0 for independent noise, plus a slow common wander's share of the variance (drift);
       z = (measured - predicted) / se; absent for recordings that do not record it (not checked)
 
@@ -35,8 +35,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..models import ModelData
-from ..models.independence import rho_and_se
-from ..models.result import chi2_sf
+from ..models.data.independence import rho_and_se
+from ..models.parts.result import chi2_sf
 from .bins import BinComparison
 
 if TYPE_CHECKING:
@@ -113,7 +113,7 @@ def kurtosis_check(b: BinComparison) -> Check | None:
 
 def fill_check(d: ModelData, stops: StopSums) -> Check:
     """Each stop's fill rate against the model's mean over the stop's pixels, with its binomial standard error
-    (the statistic the likelihood weighs, `rig.models.likelihood`)."""
+    (the statistic the likelihood weighs, `rig.models.fitting.likelihood`)."""
     keys = sorted(stops.rows)
     rows = np.array([stops.rows[k] for k in keys]).reshape(len(keys), -1)
     count, fill, binomial, frames, predicted, z = (rows[:, i] for i in range(6))

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..models.data import RANGE_BIN_M
+from ..models.data.model_data import RANGE_BIN_M
 from .bins import COLUMNS, add_run, pixel_columns, plus_columns
 
 #: the families, in the places the compiled passes give them

@@ -17,9 +17,9 @@ import numpy as np
 from numba import njit
 
 from ..models import ModelData, ModelFit, Prediction
-from ..models.data import range_bin_index
-from ..models.group_sums import group_sums
-from ..models.order_statistics import quantiles
+from ..models.data.model_data import range_bin_index
+from ..models.data.group_sums import group_sums
+from ..models.data.order_statistics import quantiles
 from .bins import RADIUS_EDGES, BinComparison, BinSums, per_row, pixel_inputs, range_labels
 from .consistency import Check, Consistency, fill_check, frame_mean_check, kurtosis_check, lag1_check, sigma_check
 from .family_sums import FAMILIES, POSITION_TILES, FamilyRows, family_labels, new_sums, residual_sums
@@ -98,7 +98,7 @@ class _Layout:
             ir_all[n_ir:n_ir + len(ir)] = ir
             n_ir += len(ir)
         positions = len(d) and np.isfinite(d.u_px).all() and np.isfinite(d.v_px).all()
-        # np.quantile's values, by a histogram selection (rig.models.order_statistics): no partition of every brightness
+        # np.quantile's values, by a histogram selection (rig.models.data.order_statistics): no partition of every brightness
         ir_edges = quantiles(ir_all[:n_ir], np.linspace(0, 1, 7)).astype(np.float64) if n_ir > 100 else None
         del ir_all
         angle_edges = np.linspace(a_lo, a_hi + 1e-9, 6) if a_hi - a_lo > 1 else None
@@ -205,7 +205,7 @@ class StopSums:
         """Chunk `c` and its prediction: per stop, in one compiled pass (`_stop_sums`), the sums of 1, fill f,
         f (1 - f) / frames, frames, predicted fill, Z, the independent part of the frame mean's variance
         (var - common Z^4) / Z^4 x gain, common, w common Z^4, w var (w = n - 1, about the pixel's consecutive pairs:
-        lag-1 correlation, rig.models.independence) and the predicted fill's binomial term."""
+        lag-1 correlation, rig.models.data.independence) and the predicted fill's binomial term."""
         if len(c) == 0:
             return
         out = np.zeros((int(c.stop.max()) + 1, 11))

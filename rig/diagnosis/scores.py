@@ -11,7 +11,7 @@ kurtosis. The headline bins are "within noise" when sum (ln ratio / se)^2 is con
 chi^2 of (bins - free parameters) degrees of freedom (p >= 0.001); the model is within noise
 when, beyond that, every other statistic it predicts is too (`rig.diagnosis.consistency`), and
 the headline names the worst one that is not. A model that fits lambda to data that do not
-determine it (`rig.models.determinacy`: fewer than three ranges, or a span under 1.5 x) is not
+determine it (`rig.models.data.determinacy`: fewer than three ranges, or a span under 1.5 x) is not
 judged at all: its verdict says "lambda NOT DETERMINED" and why.
 
 Held-out: leave one stop out (or, for a single-stop recording, one of four vertical strips
@@ -27,14 +27,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..models import Model, ModelData, ModelFit
-from ..models.optimise import fit_data
-from ..models.data import stops_of
-from ..models.grouping import whole_stops
-from ..models.likelihood import gamma_constant_by_stop, loglik
+from ..models.fitting.optimise import fit_data
+from ..models.data.model_data import stops_of
+from ..models.fitting.grouping import whole_stops
+from ..models.fitting.likelihood import gamma_constant_by_stop, loglik
 from ..models.parallel import forked_map
-from ..models.result import chi2_sf
-from ..models.determinacy import LambdaStatus, lambda_status
-from ..models.progress import ProgressCounter
+from ..models.parts.result import chi2_sf
+from ..models.data.determinacy import LambdaStatus, lambda_status
+from ..models.fitting.progress import ProgressCounter
 from .consistency import ALPHA, Consistency
 from .residuals import Residuals, residuals
 
@@ -135,8 +135,8 @@ def held_out_folds(d: ModelData) -> np.ndarray:
 def held_out_nll(model: Model, d: ModelData, full: ModelFit | None = None, *,
                  counter: ProgressCounter | None = None, jobs: int = 1) -> float:
     """Negative log-likelihood per degree of freedom on left-out stops (or image strips); `counter`, if given,
-    is told of each refit (`rig.models.progress`). Left-out stops share the whole data's per-pixel statistics
-    and grouped nodes (`rig.models.grouping.whole_stops`); the parts are fitted in up to `jobs` worker processes."""
+    is told of each refit (`rig.models.fitting.progress`). Left-out stops share the whole data's per-pixel statistics
+    and grouped nodes (`rig.models.fitting.grouping.whole_stops`); the parts are fitted in up to `jobs` worker processes."""
     groups = held_out_folds(d)
     by_stop = groups is d.stop
     start = full.values if full is not None else None

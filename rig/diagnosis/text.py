@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models.covariates import brightness_left_out
-from ..models.determinacy import lambda_status
+from ..models.data.covariates import brightness_left_out
+from ..models.data.determinacy import lambda_status
 from .verdict import Diagnosis
 
 
@@ -68,6 +68,6 @@ def render_text(diag: Diagnosis) -> str:
 
 
 def _undetermined(diag: Diagnosis) -> str:
-    """", NOT DETERMINED: why" when the recording cannot determine the power law's lambda (rig.models.determinacy)."""
+    """", NOT DETERMINED: why" when the recording cannot determine the power law's lambda (rig.models.data.determinacy)."""
     status = lambda_status(diag.data)
     return "" if status.determined else f"; NOT DETERMINED: {status.reason.removeprefix('lambda is not determined: ')}"

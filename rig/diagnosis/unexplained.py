@@ -2,7 +2,7 @@
 
 The families the verdict finds beyond noise (`rig.diagnosis.consistency`) say what kind of
 statistic is wrong. For sigma, every empirical shape that could follow it (range, radius, image
-position, IR brightness, incidence; `rig.models.empirical`) is fitted on top of the model, and
+position, IR brightness, incidence; `rig.models.effects.empirical`) is fitted on top of the model, and
 the one that lowers BIC most is the covariate the residual follows; shapes within
 TIE_FRACTION of it are reported as equivalent (radius and incidence are one covariate on a
 perpendicular wall). A wrong kurtosis gets empirical tails, a wrong fill rate an empirical fill
@@ -18,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from ..models import Effect, ModelData, ModelFit, empirical, with_errors
-from ..models.empirical import EmpiricalFrameMean, is_empirical
+from ..models.effects.empirical import EmpiricalFrameMean, is_empirical
 from ..models.parallel import fit_models
-from ..models.progress import ProgressCounter
+from ..models.fitting.progress import ProgressCounter
 from .candidates import SIGNIFICANT_DBIC
 from .consistency import Check
 from .scores import Headline, headline

@@ -25,8 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors, with_exact_loglik
-from ..models.independence import Independence, independence
-from ..models.progress import ProgressCounter, ProgressFn
+from ..models.data.independence import Independence, independence
+from ..models.fitting.progress import ProgressCounter, ProgressFn
 from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
 from .residuals import Residuals, residuals
 from .scores import Headline, headline
@@ -117,7 +117,7 @@ class Diagnosis:
 
     @property
     def independence(self) -> Independence:
-        """Whether the recording's frames are independent samples (`rig.models.independence`)."""
+        """Whether the recording's frames are independent samples (`rig.models.data.independence`)."""
         return independence(self.data.stops)
 
     # -- words ------------------------------------------------------------------------------
@@ -217,7 +217,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
              progress: ProgressFn | None = None, jobs: int = 1) -> Diagnosis:
     """Fit `model`, add missing catalogue effects one at a time (at most `max_steps`), then, with `explain`,
     describe what remains beyond noise with empirical terms. `second_round=False` is `max_steps=1`.
-    `progress` is told of each fit as it begins (`rig.models.progress`); the candidate effects are fitted in
+    `progress` is told of each fit as it begins (`rig.models.fitting.progress`); the candidate effects are fitted in
     `jobs` processes (`rig.models.parallel`)."""
     if second_round is False:
         max_steps = 1

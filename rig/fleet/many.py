@@ -4,7 +4,7 @@ and one model's for a comparison (`rig compare a.h5 b.h5`, `rig repeatability`: 
 Each recording is read and fitted in a worker process of a pool (one per core by default), and reported
 as it finishes; a recording that cannot be fitted is reported with its one-line reason and the others go on.
 The work of one recording is independent of the others', so the same function runs unchanged on a Dask cluster
-(`rig.executors`: --scheduler, or RIG_SCHEDULER; docs/performance.md, "Past one machine").
+(`rig.fleet.executors`: --scheduler, or RIG_SCHEDULER; docs/performance.md, "Past one machine").
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Iterator
 
 from .executors import run_each
-from .recording_fits import PAPER, FitJob, RecordingResult, model_for, summarise
+from ..recordings.recording_fits import PAPER, FitJob, RecordingResult, model_for, summarise
 
 
 @dataclass
@@ -42,9 +42,9 @@ def fit_one(path: Path) -> ManyRow:
     """The paper's fit of one recording and its headline error (in a worker: plain data back)."""
     from protocols.recording import RecordingError
 
-    from .analysis import fit_recording
-    from .diagnosis import headline
-    from .reports.result_json import document, fit_json
+    from ..analysis import fit_recording
+    from ..diagnosis import headline
+    from ..reports.result_json import document, fit_json
 
     try:
         r = fit_recording(path)
@@ -57,7 +57,7 @@ def fit_one(path: Path) -> ManyRow:
 
 def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None = None) -> Iterator[ManyRow]:
     """Fit every recording, `jobs` at a time (default: one per core), or on the Dask cluster at `scheduler`
-    (`rig.executors`); rows come as recordings finish."""
+    (`rig.fleet.executors`); rows come as recordings finish."""
     yield from run_each(fit_one, paths, jobs=jobs, scheduler=scheduler)
 
 
@@ -74,10 +74,10 @@ def fit_for_comparison(job: FitJob) -> RecordingResult:
 def _fit(job: FitJob) -> RecordingResult:
     from protocols.recording import Recording
 
-    from .analysis import fit_recording, in_window, recording_notes
-    from .diagnosis import headline
-    from .diagnosis.bins import pooled_sigma, sigma_by_range
-    from .models import Catalogue, load_samples
+    from ..analysis import fit_recording, in_window, recording_notes
+    from ..diagnosis import headline
+    from ..diagnosis.bins import pooled_sigma, sigma_by_range
+    from ..models import Catalogue, load_samples
 
     notes: list[str] = []
     if job.model in (None, PAPER):

@@ -5,36 +5,41 @@
     result = (active + slant_range + noise_floor).fit(data)
     print(result.report())
 
-One concept a module, from the bottom up: `data` (the per-pixel statistics models are fitted
-to, with `shape_statistics`, their measured kurtosis), `covariates` (what effects need besides
-range), `parameters`, `prediction` (the per-pixel prediction and the stages effects join at),
-`component` (what a model is made of: base models, effects, and the registry effects join with
-@register), `file_physics` (what the depth format fixes for every model), `likelihood`,
-`closed_form` (the paper's estimator), `result` (one fitted-model type, one report), `optimise`
-(maximum likelihood for any model), `composition` (`Model`: a base plus effects), `bases` (the
-power law), `effects` (the built-in physical effects), `rounding` (exact moments of depth rounded
-to its unit), `empirical` (free-form terms), `user_effects` (effects written by the user: @effect,
-load_effects), `catalogue` (every effect a model can use, by name), `parse` (models from text)
-and `paper_fit` (the paper's fit as a fitted model).
+Four subpackages, from the bottom up, and the model algebra on top of them:
+
+- `data`: what the data are: `ModelData` (the per-pixel statistics models are fitted to) read from a recording
+  (`loading`), the covariates effects need besides range, order statistics, checks of stops and of the frames'
+  independence, the measured kurtosis (`shape_statistics`), and the exact moments of depth rounded to its unit
+  (`rounding`, `rounding_table`);
+- `parts`: what every model is made of: `Param`, the components (`BaseModel`, `Effect`) and the registry effects
+  join with @register, the per-pixel `Prediction` and the stages effects join at, its derivatives (`tangents`),
+  one fitted-model type with one report (`result`);
+- `fitting`: the likelihood and its gradient, maximum likelihood for any model (`optimise`), grouped nodes for
+  large data, the paper's closed-form estimator, when to stop;
+- `effects`: the built-in physical effects, the free-form empirical shapes, effects written by the user
+  (@effect, load_effects) and what the depth format fixes for every model (`file_physics`);
+- on top: `composition` (`Model`: a base plus effects), `bases` (the power law), `catalogue` (every effect a model
+  can use, by name), `parse` (models from text), `paper_fit` (the paper's fit as a fitted model), `parallel`
+  (fits in worker processes) and `export` (a fit as a file, `rig.noise-model/1`).
 
 Every built-in effect is here by name, as its instance (`noise_floor`) and its class (`NoiseFloor`),
-from the registry (`EFFECTS`): adding one to `rig/models/effects.py` adds it here.
+from the registry (`EFFECTS`).
 """
 
 from .bases import BASES, Base, active, fixed_lambda, passive, power_law
 from .catalogue import Catalogue
-from .closed_form import PowerLawEstimate, power_law_mle
-from .component import EFFECTS, BaseModel, Component, Effect, EffectFileError, register
 from .composition import Model
-from .data import ModelData, load_samples
-from .empirical import empirical
-from .optimise import fit_model, with_errors, with_exact_loglik
+from .data.model_data import ModelData, load_samples
+from .effects.empirical import empirical
+from .effects.user_effects import Covariates, effect, load_effects
+from .fitting.closed_form import PowerLawEstimate, power_law_mle
+from .fitting.optimise import fit_model, with_errors, with_exact_loglik
 from .paper_fit import fit_power_law
-from .parameters import Param
 from .parse import parse_model
-from .prediction import EffectStage, Prediction
-from .result import ModelFit, likelihood_ratio
-from .user_effects import Covariates, effect, load_effects
+from .parts.component import EFFECTS, BaseModel, Component, Effect, EffectFileError, register
+from .parts.parameters import Param
+from .parts.prediction import EffectStage, Prediction
+from .parts.result import ModelFit, likelihood_ratio
 
 __all__ = [
     "BASES", "Base", "active", "fixed_lambda", "passive", "power_law", "BaseModel", "Component", "Param", "Model",

@@ -6,10 +6,10 @@ from typing import Any
 
 import numpy as np
 
-from .component import BaseModel
+from .parts.component import BaseModel
 from .composition import Model
-from .data import ModelData
-from .parameters import Param
+from .data.model_data import ModelData
+from .parts.parameters import Param
 
 
 class Base(BaseModel):

@@ -6,7 +6,7 @@
 
 Installed packages add effects under the entry-point group `rig.effects` (an `Effect`, or a
 list of them); `Catalogue.default()` includes them. Empirical terms (`empirical(radius)`,
-rig.models.empirical) parse in every catalogue but are not candidates: the diagnosis fits them
+rig.models.effects.empirical) parse in every catalogue but are not candidates: the diagnosis fits them
 only when nothing physical explains what remains.
 """
 
@@ -17,11 +17,11 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from .bases import BASES
-from .component import describe
+from .parts.component import describe
 from .composition import Model
-from .effects import EFFECTS, Effect
-from .empirical import empirical, is_empirical
-from .user_effects import EffectFileError, load_effects
+from .effects.builtin import EFFECTS, Effect
+from .effects.empirical import empirical, is_empirical
+from .effects.user_effects import EffectFileError, load_effects
 
 ENTRY_POINT_GROUP = "rig.effects"
 

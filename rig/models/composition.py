@@ -6,8 +6,8 @@
 
 A model predicts, for every pixel of every stop, the variance of its range samples (m^2) and
 their fourth cumulant (m^4, zero for a normal distribution); effects join at fixed stages
-(`rig.models.prediction`), and every model also includes what the file fixes
-(`rig.models.file_physics`). What a model is made of is `rig.models.component`.
+(`rig.models.parts.prediction`), and every model also includes what the file fixes
+(`rig.models.effects.file_physics`). What a model is made of is `rig.models.parts.component`.
 """
 
 from __future__ import annotations
@@ -18,17 +18,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .component import BaseModel, Component, Effect, describe
-from .data import ModelData
-from .file_physics import range_transform
-from .likelihood import model_loglik
-from .optimise import fit_model
-from .parameters import Param
-from .prediction import EffectStage, Prediction
-from .tangents import Tangents, plus, scale
+from .parts.component import BaseModel, Component, Effect, describe
+from .data.model_data import ModelData
+from .effects.file_physics import range_transform
+from .fitting.likelihood import model_loglik
+from .fitting.optimise import fit_model
+from .parts.parameters import Param
+from .parts.prediction import EffectStage, Prediction
+from .parts.tangents import Tangents, plus, scale
 
 if TYPE_CHECKING:
-    from .result import ModelFit
+    from .parts.result import ModelFit
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ class Model:
 
     def predict(self, values: Mapping[str, float], d: ModelData, tangents: Tangents | None = None) -> Prediction:
         """The prediction with parameter `values` (by qualified name); each effect gets its own (`Effect.own`). Given
-        `tangents` (`rig.models.tangents`), their derivatives are carried through every stage as well."""
+        `tangents` (`rig.models.parts.tangents`), their derivatives are carried through every stage as well."""
         pred = self.predict_noise(values, d, tangents)
         range_transform(pred, d, tangents)
         for e in self.effects:
@@ -119,7 +119,7 @@ class Model:
         return pred
 
     def loglik(self, values: Mapping[str, float], d: ModelData) -> float:
-        """The composite log-likelihood (`rig.models.likelihood`), evaluated stop by stop."""
+        """The composite log-likelihood (`rig.models.fitting.likelihood`), evaluated stop by stop."""
         return model_loglik(self, values, d)
 
     def check(self, d: ModelData) -> None:
@@ -131,8 +131,8 @@ class Model:
     def fit(self, d: ModelData, start: dict[str, float] | None = None, *, errors: bool = True,
             hold: frozenset[str] = frozenset(), grouped: bool = True, exact_loglik: bool = True,
             warm: ModelFit | None = None) -> ModelFit:
-        """Maximum likelihood (rig.models.optimise); `errors=False` skips the standard errors; parameters
+        """Maximum likelihood (rig.models.fitting.optimise); `errors=False` skips the standard errors; parameters
         in `hold` stay at their `start` values; `grouped=False` fits every pixel even where grouped nodes
-        would do (rig.models.grouping); `warm`: this model's fit to nearly the same data, to refit from."""
+        would do (rig.models.fitting.grouping); `warm`: this model's fit to nearly the same data, to refit from."""
         return fit_model(self, d, start, errors=errors, hold=hold, grouped=grouped, exact_loglik=exact_loglik,
                          warm=warm)

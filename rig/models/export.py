@@ -19,10 +19,10 @@ import numpy as np
 
 from .. import package_version
 from ..noise_model import SCHEMA, TERMS
-from .data import ModelData
-from .pchip import pchip_slopes, slopes_jacobian
-from .prediction import EffectStage
-from .result import ModelFit
+from .data.model_data import ModelData
+from .effects.pchip import pchip_slopes, slopes_jacobian
+from .parts.prediction import EffectStage
+from .parts.result import ModelFit
 
 #: what each effect that acts after sigma does to the samples, in words (docs/noise-model.md, "After sigma")
 AFTER_SIGMA = {

@@ -1,6 +1,6 @@
 """The paper's fit of sigma_Z = k * Z^lambda on all pixels and frames, as a fitted model.
 
-The estimator is `rig.models.closed_form.power_law_mle` (closed-form k, a 1-D search for
+The estimator is `rig.models.fitting.closed_form.power_law_mle` (closed-form k, a 1-D search for
 lambda, Cramer-Rao errors); this gives its result the same type and report as every
 composed model: the power law is a model with no effects.
 """
@@ -10,11 +10,11 @@ from __future__ import annotations
 import math
 
 from .bases import fixed_lambda, power_law
-from .closed_form import power_law_mle
+from .fitting.closed_form import power_law_mle
 from .composition import Model
-from .data import ModelData
-from .independence import error_inflation
-from .result import ModelFit
+from .data.model_data import ModelData
+from .data.independence import error_inflation
+from .parts.result import ModelFit
 
 
 def fit_power_law(samples: ModelData, *, lam: float | None = None) -> ModelFit:

@@ -1,6 +1,6 @@
 """One model fitted to each of several recordings, as plain data: what `rig compare a.h5 b.h5` and
-`rig repeatability` compare, and what a worker process or a Dask worker sends back (`rig.many.fit_for_comparison`,
-`rig.executors`).
+`rig repeatability` compare, and what a worker process or a Dask worker sends back (`rig.fleet.many.fit_for_comparison`,
+`rig.fleet.executors`).
 
 The model is the same for every recording, except its base where the projector says otherwise: `active` (lambda
 = 3) on a recording made with the projector off becomes `passive` (lambda = 2) there, and the other way round,
@@ -63,7 +63,7 @@ class RecordingResult:
 
 def model_for(spec: str, projector_on: bool, catalogue=None):
     """(the model `spec` names, with its base matched to the projector, a note if it was changed)."""
-    from .models import parse_model
+    from ..models import parse_model
 
     model = parse_model(spec, catalogue)
     base = model.base.name
@@ -92,8 +92,8 @@ def summarise(path: str, fit, d, h, measured, rec, notes: list[str], projector_o
 def axis_curve(fit, d, rec, z_measured) -> tuple[list[float], list[float], str]:
     """The model's sigma on the optical axis over the measured ranges (`rig.noise_model`, as exported); the base
     k Z^lambda alone where a term needs a measured input (brightness, ambient light, drift)."""
-    from .noise_model import NoiseModel, NoiseModelError
-    from .models.export import noise_model_document
+    from ..noise_model import NoiseModel, NoiseModelError
+    from ..models.export import noise_model_document
 
     z = np.linspace(min(z_measured) * 0.95, max(z_measured) * 1.03, 120)
     try:

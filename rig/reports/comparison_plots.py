@@ -11,8 +11,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..comparison import Scatter  # noqa: E402
-from ..recording_fits import RecordingResult  # noqa: E402
+from ..recordings.comparison import Scatter  # noqa: E402
+from ..recordings.recording_fits import RecordingResult  # noqa: E402
 from .sigma_plot import finish_sigma_figure, sigma_figure  # noqa: E402
 
 COLOURS = plt.rcParams["axes.prop_cycle"].by_key()["color"]

@@ -1,12 +1,12 @@
 """The text of `rig compare a.h5 b.h5 ...` and `rig repeatability`: one row a recording (every parameter with its
-error), then the verdicts in words (`rig.comparison`)."""
+error), then the verdicts in words (`rig.recordings.comparison`)."""
 
 from __future__ import annotations
 
 import math
 
-from ..comparison import Difference, Scatter, pair_verdict, repeatability_verdict
-from ..recording_fits import RecordingResult
+from ..recordings.comparison import Difference, Scatter, pair_verdict, repeatability_verdict
+from ..recordings.recording_fits import RecordingResult
 
 
 def parameter_names(results: list[RecordingResult]) -> list[str]:

@@ -6,8 +6,8 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from ..comparison import Difference, Scatter, pair_verdict, repeatability_verdict
-from ..recording_fits import RecordingResult
+from ..recordings.comparison import Difference, Scatter, pair_verdict, repeatability_verdict
+from ..recordings.recording_fits import RecordingResult
 from .comparison_text import difference_rows, results_rows, scatter_rows
 from .html_page import figures, page, run_table, table
 from .run_info import RunInfo
@@ -38,7 +38,7 @@ def fit_report(path: str, fit, d, h, text: str, out_dir: str | Path, notes: list
 
     from .. import package_version
     from ..diagnosis.bins import pooled_sigma, sigma_by_range
-    from ..recording_fits import summarise
+    from ..recordings.recording_fits import summarise
     from .comparison_plots import plot_overlay
     from .run_info import run_info
 

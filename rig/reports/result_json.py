@@ -18,7 +18,7 @@ import numpy as np
 
 from ..diagnosis import Diagnosis, Headline
 from ..models import ModelFit
-from ..models.determinacy import LambdaStatus, lambda_status
+from ..models.data.determinacy import LambdaStatus, lambda_status
 
 SCHEMA = "rig.result/1"
 

@@ -13,8 +13,8 @@ import numpy as np  # noqa: E402
 from ..diagnosis.residuals import compare_along  # noqa: E402
 from ..diagnosis.unexplained import EmpiricalStep  # noqa: E402
 from ..models import ModelData, ModelFit  # noqa: E402
-from ..models.data import range_bin_index  # noqa: E402
-from ..models.empirical import (COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition,  # noqa: E402
+from ..models.data.model_data import range_bin_index  # noqa: E402
+from ..models.effects.empirical import (COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition,  # noqa: E402
                                 EmpiricalSigma, EmpiricalTails)
 
 QUANTILE_BINS = 12

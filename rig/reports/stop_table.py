@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..models import ModelData, ModelFit
-from ..models.group_sums import group_sums
+from ..models.data.group_sums import group_sums
 
 
 @dataclass(frozen=True)

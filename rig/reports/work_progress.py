@@ -1,4 +1,4 @@
-"""Progress of long analysis work (fits, diagnoses) on a terminal, fed by `rig.models.progress`.
+"""Progress of long analysis work (fits, diagnoses) on a terminal, fed by `rig.models.fitting.progress`.
 
     with WorkProgressLine("rig diagnose", verbosity) as progress:
         diagnose(data, progress=progress)
@@ -27,7 +27,7 @@ import time
 from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:  # only named here: `rig run` must not load the models (scipy, numba) to show its progress
-    from ..models.progress import WorkProgress
+    from ..models.fitting.progress import WorkProgress
 
 BAR_WIDTH = 14
 REDRAW_S = 0.5

@@ -50,7 +50,7 @@ HIDDEN: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
 CHOICES = ["none", *HIDDEN]
 
 #: The one place where the simulator's effects and the models' effects meet. They are written
-#: independently (fakes/effects.py samples the physics, rig/models/effects.py predicts it
+#: independently (fakes/effects.py samples the physics, rig/models/effects/builtin.py predicts it
 #: analytically) and share no code; this table says which model effect the diagnosis should
 #: name when a scenario hides a simulator effect. The "quantization" scenario is a coarse depth
 #: unit (the recording's own unit), which the model's quantization effect describes; the fake

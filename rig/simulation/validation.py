@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from ..models.progress import ProgressFn, WorkProgress
+from ..models.fitting.progress import ProgressFn, WorkProgress
 
 from ..diagnosis import diagnose
 from ..models import ModelData
@@ -114,7 +114,7 @@ def _line(t: Trial) -> str:
 def validate(effects: list[str], seeds: list[int], workdir: Path, out: TextIO = sys.stdout,
              jobs: int | None = None, progress: ProgressFn | None = None) -> list[Trial]:
     """Run every (effect, seed) trial, `jobs` at a time; return them in order. `progress` is told as each trial
-    ends (`rig.models.progress`)."""
+    ends (`rig.models.fitting.progress`)."""
     jobs = jobs or os.cpu_count() or 1
     todo = [(e, s) for e in effects for s in seeds]
     trials: dict[tuple[str, int], Trial] = {}

@@ -12,7 +12,7 @@ from textual.widgets import Input, Label, Static
 
 from protocols.recording import RecordingError
 
-from rig.models.progress import WorkProgress
+from rig.models.fitting.progress import WorkProgress
 
 from .results_service import ProgressText, ResultsSession
 from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine

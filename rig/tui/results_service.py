@@ -23,8 +23,8 @@ import numpy as np
 
 from rig.diagnosis import Diagnosis, Headline, Residuals, default_model, diagnose, headline, residuals
 from rig.models import Catalogue, Model, ModelData, ModelFit
-from rig.models.empirical import COVARIATES, EmpiricalSigma
-from rig.models.progress import ProgressCounter, ProgressFn, WorkProgress
+from rig.models.effects.empirical import COVARIATES, EmpiricalSigma
+from rig.models.fitting.progress import ProgressCounter, ProgressFn, WorkProgress
 from protocols.recording import Recording
 
 from .live import format_duration

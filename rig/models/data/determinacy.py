@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .data import ModelData
+from .model_data import ModelData
 from .order_statistics import median
 
 #: fewest distinct ranges from which lambda is determined

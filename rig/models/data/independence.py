@@ -138,7 +138,7 @@ class Independence:
 
 
 def independence(stops: Any) -> Independence:
-    """Pooled over a `StopTable`'s stops (rig.models.data) that record the lag-1 statistics."""
+    """Pooled over a `StopTable`'s stops (rig.models.data.model_data) that record the lag-1 statistics."""
     nan = Independence(float("nan"), float("nan"), 0, 0, 0.0)
     if stops is None or getattr(stops, "lag1_num", None) is None:
         return nan

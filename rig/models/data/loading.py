@@ -21,7 +21,7 @@ from .covariates import StopSource
 from .independence import independence, pooled_lag1
 from .stop_checks import count_problem, range_problem, zero_variance_problems
 
-#: per-stop facts of frame independence (rig.models.independence): the pooled lag-1 sums, frames repeating their
+#: per-stop facts of frame independence (rig.models.data.independence): the pooled lag-1 sums, frames repeating their
 #: predecessor, pixels kept (two samples or more) and those of them that never changed; NaN: not recorded
 LAG1_FACTS = ("lag1_num", "lag1_den", "lag1_pairs", "frames_repeated", "kept", "constant")
 #: the matching window over which brightness is averaged (px)
@@ -44,7 +44,7 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
               _excluded: dict[str, str] | None = None) -> RecordingRows:
     """All pixels with at least `min_count` valid samples (with `positive_variance`, also M2 > 0), from every
     complete stop, with the stop sources their covariates come from. A stop that contradicts itself or the rest
-    (rig.models.stop_checks) is left out, and the recording notes it (Recording.exclude)."""
+    (rig.models.data.stop_checks) is left out, and the recording notes it (Recording.exclude)."""
     cal = recording.calibration
     excluded = dict(_excluded or {})
     labels = [label for label in recording.stop_labels() if label not in excluded]

@@ -5,14 +5,14 @@ samples from that mean (m2_m2, in m^2), and its sample count n. A pixel with n s
 nu = n - 1 degrees of freedom to a variance, because its mean was estimated from the same
 samples; its sample variance is s2 = m2 / nu.
 
-The likelihood (`rig.models.likelihood`) has three parts: each pixel's s2 is Gamma-distributed
+The likelihood (`rig.models.fitting.likelihood`) has three parts: each pixel's s2 is Gamma-distributed
 about the model's variance, with the scatter the measured kurtosis gives it; the measured
 kurtosis of each range window is normal about the model's; each stop's fill rate is normal
 about the model's. The Gamma part needs s2 > 0: `positive_variance()` drops the pixels whose
 samples were all equal, as `from_recording` does.
 
 Covariates (brightness, incidence, ambient light, position, drift, fill) are computed when first
-used, from the per-stop sources the recording gave (`rig.models.covariates.StopSource`), and
+used, from the per-stop sources the recording gave (`rig.models.data.covariates.StopSource`), and
 kept; data built by hand pass them in. Rows of one stop are contiguous, so the work that visits
 every pixel can go a few stops at a time (`chunks`), with arrays the size of about one stop.
 """
@@ -57,7 +57,7 @@ class StopTable:
     makes it mean(var / Z^4) / n_valid, a common wander (drift) or noise shared by neighbouring
     pixels makes it larger; n_valid: valid pixels in a frame, on average; time_s: the stop's
     middle, s after the first stop began (NaN if the camera gave no timestamps). lag1_num, lag1_den,
-    lag1_pairs, frames_repeated, kept, constant: frame independence (`rig.models.independence`; NaN where
+    lag1_pairs, frames_repeated, kept, constant: frame independence (`rig.models.data.independence`; NaN where
     the stop does not record it, None for data built by hand).
     """
 
@@ -152,7 +152,7 @@ class ModelData(ShapeStatistics):
                     out.__dict__[name] = tuple(a[rows] for a in v) if isinstance(v, tuple) else v[rows]
             if "kurtosis_by_range" in self.__dict__:
                 out.__dict__["kurtosis_by_range"] = self.__dict__["kurtosis_by_range"]
-            if "loglik_positions" in self.__dict__:  # the likelihood's row positions, with their key (rig.models.likelihood)
+            if "loglik_positions" in self.__dict__:  # the likelihood's row positions, with their key (rig.models.fitting.likelihood)
                 key, *positions = self.__dict__["loglik_positions"]
                 out.__dict__["loglik_positions"] = (key, *(a[rows] for a in positions))
         return out
@@ -298,14 +298,14 @@ class ModelData(ShapeStatistics):
     @cached_property
     def grid_offset(self) -> np.ndarray:
         """Where each pixel's measured mean sits between two depth levels: its offset from the nearest, in units of
-        the depth unit, in [-1/2, 1/2] (`rig.models.rounding`)."""
+        the depth unit, in [-1/2, 1/2] (`rig.models.data.rounding`)."""
         return grid_offset(self.z_m / self.depth_unit_m)
 
     def disparity_to_range(self, var_px2: np.ndarray | float) -> np.ndarray:
         """Variance in px^2 of disparity -> m^2 of range: (Z^2 / (f b))^2 var_d (paper, eq. error_prop_unassisted)."""
         return (self.z0_m**2 / self.fb_px_m) ** 2 * var_px2
 
-    # -- likelihood (rig.models.likelihood) --------------------------------------------------------------
+    # -- likelihood (rig.models.fitting.likelihood) --------------------------------------------------------------
     @cached_property
     def gamma_shape(self) -> np.ndarray:
         """Each pixel's Gamma shape: 1 / (2 / nu + excess / n), its s2's scatter from the measured kurtosis."""
@@ -325,12 +325,12 @@ class ModelData(ShapeStatistics):
     def median_range_by_stop(self) -> dict[int, float]:
         """Each stop's median measured range, m (stop index -> median of its pixels' `z_m`): where a per-stop
         statistic sits along the range (the frame-mean check, the plots); made once for the data."""
-        return {s: median(self.z_m[r]) for s, r in rows_by_stop(self)}  # np.median's value (rig.models.order_statistics)
+        return {s: median(self.z_m[r]) for s, r in rows_by_stop(self)}  # np.median's value (rig.models.data.order_statistics)
 
     @cached_property
     def fill_by_stop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(stop of each pixel as 0..S-1, measured mean fill per stop, its binomial standard error): what the
-        likelihood's fill term compares the models' fill with (`rig.models.likelihood`)."""
+        likelihood's fill term compares the models' fill with (`rig.models.fitting.likelihood`)."""
         present = np.bincount(self.stop) > 0  # stops are small non-negative integers: index them by a table, not a sort
         idx = (np.cumsum(present) - 1)[self.stop]
         stops = np.flatnonzero(present)
@@ -372,7 +372,7 @@ def range_bin_index(z_m: np.ndarray) -> np.ndarray:
 
 def load_samples(recording: Any, *, min_count: int = 2, positive_variance: bool = False) -> ModelData:
     """All pixels with at least `min_count` valid samples (with `positive_variance`, also a positive sample
-    variance), from every complete stop of an open `Recording`, read once (`rig.models.loading`)."""
+    variance), from every complete stop of an open `Recording`, read once (`rig.models.data.loading`)."""
     r = read_rows(recording, min_count=min_count, positive_variance=positive_variance)
     f = r.facts
     t0 = np.nanmin(f["time_s"]) if np.isfinite(f["time_s"]).any() else 0.0

@@ -18,7 +18,7 @@ used to place phi: with two levels, s2 = n / (n - 1) f (1 - f) exactly, while Va
 phi that reproduces f is f (1 - f); and a pixel whose samples are all equal (s2 = 0) is not in
 the data at all. `expected_sample_variance` therefore takes, for spreads up to
 `rounding_table.S_GRID[-1]` (0.7 q), the exact E[s2 | measured mean, s2 > 0] from
-`rig.models.rounding_table` (generating functions over the counts on each level, averaged over
+`rig.models.data.rounding_table` (generating functions over the counts on each level, averaged over
 where the true mean sits). Above it the conditioning is below 1e-3 of the variance, and
 Var[R] (1 + b(s) / (n - 1)) with b(s) = 1 / (1 + (s / 0.18)^6) is used; the two are blended
 over 0.55-0.7 q. Against simulated rounded normals (tests/test_rounding.py) this holds pixel by

@@ -17,7 +17,7 @@ both come from one FFT of the coefficients. P(all equal, T=K) is p_0^n for K = 0
 `build(s, n)` computes this for K = 0 .. n // 2 (by symmetry that is every f in [-1/2, 1/2]);
 `TABLE_FILE` holds it on S_GRID x N_GRID, as what a third level adds to two-level data, by K near a
 level and by f beyond (`resample`),
-written by `python -m rig.models.rounding_table` (about two minutes) and checked against a
+written by `python -m rig.models.data.rounding_table` (about two minutes) and checked against a
 fresh computation by tests/test_rounding.py.
 """
 

@@ -4,7 +4,7 @@ variance, and the kurtosis of each range window pooled from them.
 Per pixel the work is done within a stop (neighbours are pixels of the same stop), so it can go stop by
 stop; the range windows' pooled kurtosis is made of sums over all stops (`pooled_from_sums`).
 
-`ShapeStatistics` is the part of `rig.models.data.ModelData` that measures them: its properties,
+`ShapeStatistics` is the part of `rig.models.data.model_data.ModelData` that measures them: its properties,
 computed once and kept (cached), are the data's own (`d.pixel_kurtosis`); it reads the rows' moments
 and positions, which `ModelData` holds.
 """

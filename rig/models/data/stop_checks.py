@@ -4,7 +4,7 @@ A file can be readable and still wrong: a stop's variances zeroed (a writer bug,
 mean range a factor off its position (a wrong depth unit for one stop, a corrupted dataset), or its
 per-pixel counts disagreeing with the per-frame valid fractions recorded as the frames came in. Fitted
 as they are, one such stop moves lambda by hundreds of standard errors without a word. Each check
-here names the stop, the field and what it should be; `rig.models.loading` leaves such a stop out of
+here names the stop, the field and what it should be; `rig.models.data.loading` leaves such a stop out of
 the fit and the recording's notes say so.
 """
 

@@ -1,7 +1,7 @@
 """The physical effects the paper's model leaves out: the built-in catalogue, `EFFECTS`.
 
-Each effect is one class here, registered by `@register` (`rig.models.component`): it says where
-it joins the prediction (`stage`, see `rig.models.prediction`), its parameters with units and
+Each effect is one class here, registered by `@register` (`rig.models.parts.component`): it says where
+it joins the prediction (`stage`, see `rig.models.parts.prediction`), its parameters with units and
 bounds, the residual pattern it explains (`signature`) and what it means physically
 (`explanation`); `apply(pred, p, d)` gets its own parameters as `p` (`p.sigma_px`). Registered,
 it composes with a base model (`active + slant_range`; the instance is `rig.models.slant_range`),
@@ -15,13 +15,13 @@ import math
 import numpy as np
 from numba import njit
 
-from .component import EFFECTS, Effect, register, registered_by
-from .data import ModelData
+from ..parts.component import EFFECTS, Effect, register, registered_by
+from ..data.model_data import ModelData
 from .file_physics import MAX_DEPTH_UNITS, truncated_normal_moments
-from .parameters import Param
-from .prediction import EffectStage
-from .rounding import expected_sample_variance
-from .tangents import plus, scale
+from ..parts.parameters import Param
+from ..parts.prediction import EffectStage
+from ..data.rounding import expected_sample_variance
+from ..parts.tangents import plus, scale
 
 __all__ = ["EFFECTS", "Effect", "register"]
 
@@ -274,7 +274,7 @@ def _outlier_mixture(z, var0, k40, f_all, w, fb, deepest_m, with_partials, parti
 class Quantization(Effect):
     """Rounding to the depth unit q (and to the matcher's disparity step, if given).
 
-    Exactly, whatever the noise against q (`rig.models.rounding`): a pixel's rounded samples have
+    Exactly, whatever the noise against q (`rig.models.data.rounding`): a pixel's rounded samples have
     the variance and fourth moment of a rounded normal whose true mean sits where the pixel's
     measured mean says it does between two depth levels: from 0 to q^2 / 4 when the noise is
     below q, q^2 / 12 more than the noise (Sheppard's correction) when it is well above. A
@@ -284,7 +284,7 @@ class Quantization(Effect):
 
     name = "quantization"
     stage = EffectStage.QUANTIZE
-    by_grid_offset = True  # its prediction turns on each pixel's own place on the depth grid (rig.models.grouping)
+    by_grid_offset = True  # its prediction turns on each pixel's own place on the depth grid (rig.models.fitting.grouping)
     params = (Param("step_px", 0.0, 0.0, 1.0, "px", "disparity step of the matcher (0: continuous)", vary=False),)
     signature = "the error levels off at short range near the size of the depth unit"
     explanation = ("quantization: depth is rounded to the depth unit (and disparity to the matcher's step), "
@@ -303,7 +303,7 @@ class Quantization(Effect):
         pred.k4_m4 = k4_rounding if pred.k4_m4 is None else pred.k4_m4 + k4_rounding
         if t is None:
             return
-        # d/ds of the rounded moments (a table and its blend, `rig.models.rounding`): central differences of each
+        # d/ds of the rounded moments (a table and its blend, `rig.models.data.rounding`): central differences of each
         # row's own value; ds = d var_in / (2 s q^2); the step is fixed (no parameter of this effect is fitted)
         h = 1e-6 * s
         vp, mp = expected_sample_variance(s + h, d.grid_offset, d.n)
@@ -389,7 +389,7 @@ class Censoring(Effect):
 
 
 def __getattr__(name: str) -> Effect:
-    """The built-in effects' instances by name: `rig.models.effects.noise_floor` (one per registered class)."""
+    """The built-in effects' instances by name: `rig.models.effects.builtin.noise_floor` (one per registered class)."""
     for e in registered_by(__name__):
         if e.name == name:
             return e

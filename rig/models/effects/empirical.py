@@ -32,15 +32,15 @@ from typing import Any, Callable
 import numpy as np
 from scipy.special import expit
 
-from .component import Component, Effect
-from .data import ModelData
-from .likelihood import pixel_weights
-from .parameters import Param
+from ..parts.component import Component, Effect
+from ..data.model_data import ModelData
+from ..fitting.likelihood import pixel_weights
+from ..parts.parameters import Param
 from .pchip import hermite_basis
 from .pchip import smooth as _smooth
 from .pchip import smooth_jacobian
-from .prediction import EffectStage, Prediction
-from .tangents import plus, scale
+from ..parts.prediction import EffectStage, Prediction
+from ..parts.tangents import plus, scale
 
 #: the covariates a sigma shape can follow, with their units and how each is read from the data
 COVARIATES: dict[str, tuple[str, Callable[[ModelData], np.ndarray]]] = {

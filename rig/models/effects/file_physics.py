@@ -18,9 +18,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .data import ModelData
-from .prediction import Prediction
-from .tangents import Tangents, plus, scale
+from ..data.model_data import ModelData
+from ..parts.prediction import Prediction
+from ..parts.tangents import Tangents, plus, scale
 
 #: the largest value a uint16 depth image holds; 0 means no data
 MAX_DEPTH_UNITS = 65535
@@ -41,7 +41,7 @@ SERIES_TERMS = 24
 def range_transform(pred: Prediction, d: ModelData, t: Tangents | None = None) -> None:
     """The format's end and the curvature of Z = f b / d: closed-form corrections far from the end,
     exact moments by quadrature near it (see the module docstring); one compiled pass (`_transform`).
-    Given tangents (`rig.models.tangents`), carries them through: analytic far from the end, where the
+    Given tangents (`rig.models.parts.tangents`), carries them through: analytic far from the end, where the
     correction is a formula; near it, by central differences of each row's own quadrature."""
     var_lin = np.ascontiguousarray(pred.var_m2, dtype=float)
     n = var_lin.size

@@ -1,5 +1,5 @@
 """The shape-preserving cubic (PCHIP) the empirical terms are drawn with, and its derivative with respect to
-the values at the knots (what an empirical term's analytic gradient needs: `rig.models.tangents`)."""
+the values at the knots (what an empirical term's analytic gradient needs: `rig.models.parts.tangents`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from numba import njit
 def hermite_basis(knots: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where each x (clipped to the knots) falls and the cubic Hermite basis there: (interval index i, the (4, n)
     array H00, H10 h, H01, H11 h, h the interval's width). It depends on x and the knots alone, so a fit that
-    evaluates a shape thousands of times on the same rows computes it once (`rig.models.empirical`)."""
+    evaluates a shape thousands of times on the same rows computes it once (`rig.models.effects.empirical`)."""
     knots = np.asarray(knots, dtype=float)
     x = np.clip(x, knots[0], knots[-1])
     i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)

@@ -36,11 +36,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .component import EFFECTS, Effect, EffectFileError, add, forget, registered_by
-from .data import ModelData
-from .parameters import Param
-from .prediction import EffectStage, Prediction
-from .tangents import plus, scale
+from ..parts.component import EFFECTS, Effect, EffectFileError, add, forget, registered_by
+from ..data.model_data import ModelData
+from ..parts.parameters import Param
+from ..parts.prediction import EffectStage, Prediction
+from ..parts.tangents import plus, scale
 
 STAGES = {
     "illumination": EffectStage.ILLUMINATION,

@@ -1,6 +1,6 @@
 """Pixels grouped, for fast fits: each small tile of a stop stands in for its pixels by 7 weighted nodes.
 
-Every part of the likelihood (`rig.models.likelihood`) is a weighted sum over pixels of a smooth
+Every part of the likelihood (`rig.models.fitting.likelihood`) is a weighted sum over pixels of a smooth
 function of the pixel's prediction: sum_p a_p ln V_p, sum_p b_p / V_p (b = a s2), sum_p kw_p K_p / V_p^2,
 sum_p fill_p. Within a tile of t x t pixels of one stop and one range window, the prediction depends on the
 pixel through its position (u, v) and its range Z; write xi = (du, dv, e) for the offsets from the tile's
@@ -31,7 +31,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .data import ModelData, stops_of
+from ..data.model_data import ModelData, stops_of
 
 #: nodes the grouping aims at, in all (7 per tile)
 TARGET_NODES = 60_000
@@ -142,7 +142,7 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
 
 def whole_stops(d: ModelData, mask: np.ndarray, *, statistics: bool = True) -> ModelData:
     """The rows of `d` where `mask` is true, which must be whole stops, with the grouped nodes of those stops
-    (`rig.models.grouping.nodes_of_stops`: tiles never span stops) and the covariates computed so far. With
+    (`rig.models.fitting.grouping.nodes_of_stops`: tiles never span stops) and the covariates computed so far. With
     `statistics`, also the per-pixel statistics computed so far (they are computed within a stop, so a stop's
     values do not depend on the other stops; the kurtosis by range window is the whole data's, shared only
     where a window holds two stops' pixels); without, only what a fit on the nodes reads of the pixels (the

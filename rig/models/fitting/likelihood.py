@@ -18,7 +18,7 @@ Three parts:
 
 Every part is a sum over pixels (or a ratio of sums per window and per stop), so a model is
 evaluated stop by stop (`model_loglik`) with arrays the size of one stop, and the same sums serve
-grouped data (`rig.models.grouping`), whose rows carry the weights of the pixels they stand for:
+grouped data (`rig.models.fitting.grouping`), whose rows carry the weights of the pixels they stand for:
 `likelihood_weights` gives, per row, a (the Gamma shape), b (a s2), the kurtosis weight (n where
 the pixel's kurtosis is usable) and the pixel count.
 """
@@ -31,16 +31,16 @@ import numpy as np
 from numba import njit
 from scipy.special import gammaln
 
-from .tangents import Tangents
+from ..parts.tangents import Tangents
 
 if TYPE_CHECKING:
-    from .component import ComposedModel
-    from .data import ModelData
-    from .prediction import Prediction
+    from ..parts.component import ComposedModel
+    from ..data.model_data import ModelData
+    from ..parts.prediction import Prediction
 
 
 def likelihood_weights(d: ModelData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | float]:
-    """Per row: (a, b, kurtosis weight, pixels); grouped data carry their own (`rig.models.grouping`)."""
+    """Per row: (a, b, kurtosis weight, pixels); grouped data carry their own (`rig.models.fitting.grouping`)."""
     own = getattr(d, "weights", None)
     if own is not None:
         return own
@@ -119,7 +119,7 @@ class LoglikSums:
 
     def add_with_tangent(self, d: ModelData, pred: Prediction, t: Tangents) -> None:
         """`add` the rows of `d` with their prediction, and their share of the gradient: the prediction's derivatives
-        `t` (`rig.models.tangents`) times the likelihood's own, d/d var of the Gamma terms, and the kurtosis windows'
+        `t` (`rig.models.parts.tangents`) times the likelihood's own, d/d var of the Gamma terms, and the kurtosis windows'
         and stops' sums' derivatives; one compiled pass over the rows (`_accumulate`)."""
         if not hasattr(self, "g_gamma"):
             self.g_gamma = np.zeros(t.m)
@@ -261,7 +261,7 @@ def model_loglik(model: ComposedModel, values: dict[str, float], d: ModelData) -
 
 def model_loglik_gradient(model: ComposedModel, values: dict[str, float], d: ModelData,
                           names: list[str]) -> tuple[float, np.ndarray]:
-    """`model_loglik` and its gradient over the parameters `names`, analytic (`rig.models.tangents`): the model's
+    """`model_loglik` and its gradient over the parameters `names`, analytic (`rig.models.parts.tangents`): the model's
     base and every effect must carry their derivatives (`tangents.analytic`)."""
     prepare(d)
     sums = LoglikSums(d)

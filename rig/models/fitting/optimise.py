@@ -1,8 +1,8 @@
 """Maximum likelihood for any composed model: bounded parameters mapped to free ones, L-BFGS-B with the
-likelihood's analytic gradient (`rig.models.tangents`; central differences for an effect without one), stopped
-when a Newton step would gain less than 1e-6 nats (`rig.models.stopping`), with a Nelder-Mead polish on flat
+likelihood's analytic gradient (`rig.models.parts.tangents`; central differences for an effect without one), stopped
+when a Newton step would gain less than 1e-6 nats (`rig.models.fitting.stopping`), with a Nelder-Mead polish on flat
 ridges, started from the paper's closed-form power-law fit, and Cramer-Rao standard errors from a finite-difference
-Hessian of the log-likelihood. Large data are fitted on grouped nodes (`rig.models.grouping`)."""
+Hessian of the log-likelihood. Large data are fitted on grouped nodes (`rig.models.fitting.grouping`)."""
 
 from __future__ import annotations
 
@@ -13,17 +13,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .closed_form import power_law_mle
-from .data import ModelData
-from .error_notes import error_notes
-from .independence import error_inflation
+from ..data.model_data import ModelData
+from ..parts.error_notes import error_notes
+from ..data.independence import error_inflation
 from .likelihood import model_loglik_gradient
-from .parameters import Param
-from .result import ModelFit
+from ..parts.parameters import Param
+from ..parts.result import ModelFit
 from .stopping import NewtonStop
-from .tangents import analytic
+from ..parts.tangents import analytic
 
 if TYPE_CHECKING:
-    from .component import ComposedModel
+    from ..parts.component import ComposedModel
 
 #: the Nelder-Mead polish's budget of objective evaluations, per free parameter (plus one)
 NM_EVALUATIONS_PER_PARAMETER = 100
@@ -113,7 +113,7 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
     `_whitening`): there the likelihood is nearly round, so L-BFGS-B's first steps are Newton's and the stopping
     rule trusts that curvature from the first step (`NewtonStop`'s prior).
 
-    Large data are fitted on their grouped nodes (`rig.models.grouping`, a second-order expansion of the
+    Large data are fitted on their grouped nodes (`rig.models.fitting.grouping`, a second-order expansion of the
     likelihood about each small tile), when every effect of the model is smooth within a tile and `grouped`
     is true; the log-likelihood reported is then evaluated on every pixel at the optimum (with `exact_loglik`
     False, the nodes' value is reported: a held-out fold needs only the parameters)."""
@@ -156,7 +156,7 @@ def fit_model(model: ComposedModel, d: ModelData, start: dict[str, float] | None
         return -ll / scale if np.isfinite(ll) else 1e30
 
     def objective_and_gradient(y: np.ndarray) -> tuple[float, np.ndarray]:
-        """The objective and its analytic gradient (`rig.models.tangents`), by the chain rule through `unpack`."""
+        """The objective and its analytic gradient (`rig.models.parts.tangents`), by the chain rule through `unpack`."""
         v = unpack(y)
         try:
             ll, g = model_loglik_gradient(model, v, work, names)
@@ -324,7 +324,7 @@ def with_exact_loglik(fit: ModelFit, d: ModelData) -> ModelFit:
 def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelData,
                      names: list[str]) -> tuple[dict[str, float], np.ndarray | None, dict[str, str]]:
     """Cramer-Rao standard errors from the inverse of the observed information (minus the Hessian), the covariance,
-    and for each error that could not be had, why (`rig.models.error_notes`).
+    and for each error that could not be had, why (`rig.models.parts.error_notes`).
 
     The Hessian is taken by central differences twice: first its diagonal, with steps of 1e-4 of each value, then
     the whole with steps of a fifth of each parameter's error with the others held, 1 / sqrt(-H_ii) (kept inside the
@@ -392,9 +392,9 @@ def _standard_errors(model: ComposedModel, values: dict[str, float], d: ModelDat
     if any(params[n].at_bound(v) for n, v in zip(names, x)):
         # a maximum on a bound is no stationary point: its curvature (one-sided, from steps squeezed into the room
         # left, or none when the fit sits exactly on it) is no error, for that parameter or, jointly, the others
-        # (rig.models.error_notes says which and why); decided here, not by whether the differences happen to fail
+        # (rig.models.parts.error_notes says which and why); decided here, not by whether the differences happen to fail
         se, cov = np.full(len(names), np.nan), None
-    # frames measured not independent hold fewer independent samples: widen by sqrt(n / n_eff) (rig.models.independence)
+    # frames measured not independent hold fewer independent samples: widen by sqrt(n / n_eff) (rig.models.data.independence)
     grow = error_inflation(d)
     if grow != 1.0:
         se, cov = se * grow, (cov * grow**2 if cov is not None else None)

@@ -27,14 +27,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
-from ..effect_errors import EffectFileError
+from .effect_errors import EffectFileError
 from .parameters import Param
 from .prediction import EffectStage, Prediction
 
 if TYPE_CHECKING:
     import numpy as np
 
-    from .data import ModelData
+    from ..data.model_data import ModelData
 
 
 class Component:
@@ -67,7 +67,7 @@ class BaseModel(Component):
         raise NotImplementedError
 
     def shot_tangent(self, p: Mapping[str, float], d: ModelData, shot: np.ndarray, t: Any) -> np.ndarray | None:
-        """d(shot variance) / d(parameters) for the rows of `t` (`rig.models.tangents`)."""
+        """d(shot variance) / d(parameters) for the rows of `t` (`rig.models.parts.tangents`)."""
         raise NotImplementedError
 
 
@@ -77,7 +77,7 @@ class Effect(Component):
     stage: where it joins (see `EffectStage`); needs: the covariates it uses; signature: the residual
     pattern it explains, in plain words; explanation: what it means physically; groupable: its prediction is
     smooth within a small tile of the image, so large data may be fitted on grouped nodes
-    (`rig.models.grouping`); False for what depends on each pixel's own place on the depth grid.
+    (`rig.models.fitting.grouping`); False for what depends on each pixel's own place on the depth grid.
     `apply(pred, p, d)` changes the prediction, with `p` its own parameters (`own`): `p.sigma_px`.
     """
 
@@ -87,7 +87,7 @@ class Effect(Component):
     needs: ClassVar[tuple[str, ...]] = ()
     signature: ClassVar[str] = ""
     explanation: ClassVar[str] = ""
-    #: where it was registered ("rig/models/effects.py:55"), for messages; set by `register`
+    #: where it was registered ("rig/models/effects/builtin.py:55"), for messages; set by `register`
     defined_at: str = ""
 
     def applicable(self, d: ModelData) -> str | None:
@@ -99,7 +99,7 @@ class Effect(Component):
         raise NotImplementedError
 
     def apply_tangent(self, pred: Prediction, p: Any, d: ModelData, t: Any) -> None:
-        """`apply`, carrying the derivatives `t` (`rig.models.tangents.Tangents`) through it by the chain rule.
+        """`apply`, carrying the derivatives `t` (`rig.models.parts.tangents.Tangents`) through it by the chain rule.
         A model with an effect that has none is fitted with central differences of the whole likelihood instead."""
         raise NotImplementedError
 
@@ -162,7 +162,7 @@ class ComposedModel(Protocol):
 EFFECTS: dict[str, Effect] = {}
 #: effects registered by any other module (a file of effects, a plugin, a test): module name -> name -> effect
 _ELSEWHERE: dict[str, dict[str, Effect]] = {}
-_ROOT = Path(__file__).resolve().parents[2]
+_ROOT = Path(__file__).resolve().parents[3]
 
 
 def register(cls: type[Effect]) -> type[Effect]:
@@ -201,7 +201,7 @@ def forget(module: str) -> None:
 
 
 def describe(e: Effect) -> str:
-    """The effect's class (or function) and where it was defined, for messages: "NoiseFloor (rig/models/effects.py:55)"."""
+    """The effect's class (or function) and where it was defined, for messages: "NoiseFloor (rig/models/effects/builtin.py:55)"."""
     fn = getattr(e, "fn", None)
     what = getattr(fn, "__qualname__", None) or type(e).__qualname__
     return f"{what} ({e.defined_at})" if e.defined_at else what

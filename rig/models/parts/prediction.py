@@ -8,7 +8,7 @@ requires changing another (see `rig.models.composition.Model.predict`):
   IMAGE_NOISE   add image noise relative to the pattern's shot noise: var *= 1 + terms
   DISPARITY     add disparity noise independent of light
   DRIFT         add the variance of the stop's mean over time
-  EMPIRICAL     multiply the variance by a free-form shape (rig.models.empirical)
+  EMPIRICAL     multiply the variance by a free-form shape (rig.models.effects.empirical)
   CENSOR        truncate the disparity error (the camera drops unconfident matches)
   (all models)  the deepest range the depth format holds, and the curvature of Z = f b / d
   QUANTIZE      round to the depth unit
@@ -49,7 +49,7 @@ class Prediction:
     k4_m4: np.ndarray | None = None  # fourth cumulant; None = normal
     fill: np.ndarray | None = None  # predicted fraction of frames with a valid sample
     #: variance over frames of a wander common to all pixels of a stop, in (1/m)^2 of 1/Z (drift); the
-    #: per-frame series measures it (rig.models.data.StopTable.series_var_inv2)
+    #: per-frame series measures it (rig.models.data.model_data.StopTable.series_var_inv2)
     common_inv2: np.ndarray | float = 0.0
     #: the variance over frames of the frame's mean, against what independent pixels give (1: independent)
     frame_mean_gain: np.ndarray | float = 1.0

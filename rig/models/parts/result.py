@@ -16,7 +16,7 @@ from scipy.special import chdtrc
 
 if TYPE_CHECKING:
     from .component import ComposedModel
-    from .data import ModelData
+    from ..data.model_data import ModelData
     from .prediction import Prediction
 
 
@@ -41,13 +41,13 @@ class ModelFit:
     z_range_m: tuple[float, float] = (float("nan"), float("nan"))
     covariance: np.ndarray | None = field(default=None, repr=False)
     #: what the log-likelihood is of: the paper's fit uses the samples' Gaussian likelihood, composed models
-    #: the Gamma likelihood of the pixel variances (rig.models.data); they differ by terms of the data alone,
+    #: the Gamma likelihood of the pixel variances (rig.models.data.model_data); they differ by terms of the data alone,
     #: so compare BICs only between fits of the same kind
     likelihood: str = "Gamma, of the pixel variances"
-    #: for each free parameter without a standard error (NaN), why, in words (`rig.models.error_notes`)
+    #: for each free parameter without a standard error (NaN), why, in words (`rig.models.parts.error_notes`)
     error_notes: dict[str, str] = field(default_factory=dict)
     #: the optimiser's inverse-Hessian estimate at the optimum, in its free coordinates, with the names it is over
-    #: (`rig.models.optimise._metric`): what a refit on nearly the same data starts from (`warm`)
+    #: (`rig.models.fitting.optimise._metric`): what a refit on nearly the same data starts from (`warm`)
     metric: tuple[tuple[str, ...], np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     # -- criteria ----------------------------------------------------------------------------

@@ -2,7 +2,7 @@
 
 A fit asks for the log-likelihood and its gradient over the free parameters theta. The likelihood is
 a sum over rows of functions of each row's predicted variance, fourth cumulant and fill
-(`rig.models.likelihood`), so its gradient is sum_rows (dL/dvar dvar/dtheta + dL/dk4 dk4/dtheta +
+(`rig.models.fitting.likelihood`), so its gradient is sum_rows (dL/dvar dvar/dtheta + dL/dk4 dk4/dtheta +
 dL/dfill dfill/dtheta). `Tangents` carries d(quantity)/d(theta_j) for every quantity the prediction
 is built from (shot variance, illumination, image terms, variance, fourth cumulant, fill), one row
 per parameter, and every stage that changes the prediction changes them by the chain rule:
@@ -10,9 +10,9 @@ per parameter, and every stage that changes the prediction changes them by the c
 written next to its formula) instead of `apply`.
 
 A quantity whose derivative is zero for every parameter is None (most are: fill until censoring or
-the mixture, illumination for every built-in effect). A user's effect (`rig.models.user_effects`)
+the mixture, illumination for every built-in effect). A user's effect (`rig.models.effects.user_effects`)
 differences its own function per row for its parameters; an `Effect` subclass without `apply_tangent`
-makes the model fall back to central differences of the whole likelihood (`rig.models.optimise`).
+makes the model fall back to central differences of the whole likelihood (`rig.models.fitting.optimise`).
 `tests/test_gradients.py` checks every built-in, empirical and user term's gradient against those
 differences.
 """

@@ -1,0 +1,1 @@
+"""Settings of rig's own processes: one BLAS thread, Python's collector."""
