@@ -8,7 +8,6 @@ docs/stages.md lists them all with causes and fixes.
 
 from __future__ import annotations
 
-import time
 from typing import Any, Callable
 
 from ..errors import StageError
@@ -172,7 +171,7 @@ class GrblStage(Stage):
         self._stopping_on_error(lambda: (self.link.command(command, self.timeout_s),
                                          self._poll_until_idle(repr(command), self._move_time_s(distance_mm))))
         if self.settle_s > 0:
-            time.sleep(self.settle_s)
+            self.link.clock.sleep(self.settle_s)
         measured = self.position_m()
         self.check_arrived(position_m, measured)
         return measured
@@ -299,7 +298,7 @@ class GrblStage(Stage):
         two reply times. None when still; else what was seen (and nothing more is sent)."""
         feed = status.feed_mm_min if status is not None and status.feed_mm_min > 0 else self.feed_mm_min
         accel = self.settings.get(120, 0.0) or 10.0
-        deadline = time.monotonic() + 3.0 * (feed / 60.0) / accel + 2.0 * self.timeout_s + 1.0
+        deadline = self.link.clock.monotonic() + 3.0 * (feed / 60.0) / accel + 2.0 * self.timeout_s + 1.0
         seen = "no status report came"
         while True:
             self.link.write(b"!", "a feed hold ('!')")  # again each time: a real-time byte can be lost too
@@ -318,9 +317,9 @@ class GrblStage(Stage):
                         or status.state in ("Door:0", "Door:1"):
                     return None
                 seen = f"it still reported {status.state} at X {status.x_mm:.3f} mm"
-            if time.monotonic() > deadline:
+            if self.link.clock.monotonic() > deadline:
                 return seen
-            time.sleep(self.poll_s)
+            self.link.clock.sleep(self.poll_s)
 
     def _stop_motion(self) -> str:
         """After an error during a move: a feed hold, then, once the hold is complete (Hold:0), a soft reset,
@@ -343,13 +342,13 @@ class GrblStage(Stage):
         """Idle counts once motion was seen, or when two reports in a row say Idle (a move may not have
         started when the first one is sent). Stuck: the position has not changed for stall_s while not
         Idle, or the move takes far longer than the settings allow."""
-        start = time.monotonic()
+        start = self.link.clock.monotonic()
         deadline = start + 2.0 * expected_s + 10.0
         moved, idle_reports = False, 0
         last_x, last_change = None, start
         while True:
             status = self.link.status(what)
-            now = time.monotonic()
+            now = self.link.clock.monotonic()
             if last_x is None or abs(status.x_mm - last_x) > 1e-3:
                 last_x, last_change = status.x_mm, now
             kind = status.kind
@@ -386,7 +385,7 @@ class GrblStage(Stage):
                     f"though {expected_s:.1f} s should do at F{self.feed_mm_min:.0f} ($110={self.settings.get(110, 0):g}, "
                     f"$120={self.settings.get(120, 0):g})", "check the rail for obstruction and the controller's overrides",
                 )
-            time.sleep(self.poll_s)
+            self.link.clock.sleep(self.poll_s)
 
 
 def open_grbl(spec: DeviceSpec, context: dict[str, Any]) -> Stage:

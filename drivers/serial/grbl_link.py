@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import math
 import re
-import time
 from dataclasses import dataclass, field
 
 from ..errors import StageError
 from .grbl_codes import GRBL_ALARMS, GRBL_ERRORS
 from .grbl_machine import travel_note
 from .grbl_status import parse_status
-from .line import CABLE, GarbledReply, SerialLine
+from .line import CABLE, Clock, GarbledReply, SerialLine
 
 _BANNER = re.compile(r"^Grbl (\S+) \[.*\]$")
 #: `$$` lines as GRBL prints them (report.c): anything else in its reply is a garbled line
@@ -78,6 +77,11 @@ class GrblLink:
         return self.line.path
 
     @property
+    def clock(self) -> Clock:
+        """The line's clock (`SerialLine.clock`): every deadline and wait of the driver reads it."""
+        return self.line.clock
+
+    @property
     def baud(self) -> int:
         return self.line.baud
 
@@ -110,7 +114,7 @@ class GrblLink:
         for _ in range(_COMMAND_TRIES):
             self.drop_stale(what)
             self.line.write(line.encode("ascii") + b"\n", what)
-            deadline = time.monotonic() + self.timeout_s
+            deadline = self.clock.monotonic() + self.timeout_s
             out: list[str] = []
             clean = True
             while True:
@@ -148,14 +152,14 @@ class GrblLink:
         for _ in range(2):
             self.line.discard_input()
             self.line.write(b"\x18", "a soft reset (Ctrl-X)")
-            deadline = time.monotonic() + self.timeout_s
+            deadline = self.clock.monotonic() + self.timeout_s
             while True:
                 try:
                     line = self.line.read_line(deadline, "a soft reset (Ctrl-X)")
                 except GarbledReply:
                     seen.append("garbled bytes")
                     continue
-                if line is None or time.monotonic() > deadline:
+                if line is None or self.clock.monotonic() > deadline:
                     break  # silence, or a port that streams without ever sending the banner: the deadline holds
                 match = _BANNER.match(line)
                 if match:
@@ -179,13 +183,13 @@ class GrblLink:
         trouble = _Trouble()
         for _ in range(_COMMAND_TRIES):
             self.line.write(line.encode("ascii") + b"\n", what)
-            deadline = time.monotonic() + timeout_s
+            deadline = self.clock.monotonic() + timeout_s
             while True:
                 try:
                     text = self.line.read_line(deadline, what)
                 except GarbledReply as e:
                     trouble.garbled.append(e.raw)
-                    deadline = min(deadline, time.monotonic() + self.timeout_s)  # that may have been the 'ok'
+                    deadline = min(deadline, self.clock.monotonic() + self.timeout_s)  # that may have been the 'ok'
                     continue
                 if text is None:
                     if self.line.late:
@@ -200,8 +204,8 @@ class GrblLink:
                         self.check_message(text, what, during)
                     except GarbledReply:
                         trouble.garbled.append(text)
-                        deadline = min(deadline, time.monotonic() + self.timeout_s)
-                if time.monotonic() > deadline:  # lines keep coming, none of them the 'ok'
+                        deadline = min(deadline, self.clock.monotonic() + self.timeout_s)
+                if self.clock.monotonic() > deadline:  # lines keep coming, none of them the 'ok'
                     trouble.silent += 1
                     break
         raise self.link_trouble(what, trouble, _COMMAND_TRIES, timeout_s)
@@ -230,7 +234,7 @@ class GrblLink:
             self.drop_stale("'?'", during)
             self.line.write(b"?", "'?'")
             asked += 1
-            deadline = time.monotonic() + self.timeout_s
+            deadline = self.clock.monotonic() + self.timeout_s
             while True:
                 try:
                     text = self.line.read_line(deadline, "'?'")
@@ -250,7 +254,7 @@ class GrblLink:
                         break
                     if math.isnan(status.x_mm) and wco_waits < _WCO_WAITS:
                         asked, wco_waits = asked - 1, wco_waits + 1  # WPos before any WCO: one comes within 30 reports
-                        time.sleep(self.poll_s)
+                        self.clock.sleep(self.poll_s)
                         break
                     if math.isnan(status.x_mm):
                         raise self.line.error(
@@ -263,7 +267,7 @@ class GrblLink:
                     except GarbledReply:
                         trouble.garbled.append(text)
                         break
-                if time.monotonic() > deadline:  # lines keep coming, none of them a status report
+                if self.clock.monotonic() > deadline:  # lines keep coming, none of them a status report
                     trouble.silent += 1
                     break
         raise self.link_trouble("'?'", trouble, tries)
@@ -273,7 +277,7 @@ class GrblLink:
         and stray 'ok's are dropped, alarms and errors among them raised."""
         while self.line.waiting:
             try:
-                text = self.line.read_line(time.monotonic(), what)
+                text = self.line.read_line(self.clock.monotonic(), what)
             except GarbledReply:
                 continue
             if text is None:

@@ -20,6 +20,21 @@ CABLE = "check the USB cable and that the controller is powered"
 MAX_LINE = 256
 
 
+class Clock:
+    """The time the serial drivers keep: deadlines read `monotonic()`, waits (polling, settling) call `sleep()`.
+
+    The system's by default. A test gives a line its own (`SerialLine.clock`, with `SerialLine.open_port`:
+    tests/exchanges.py, a scripted port in virtual time), so that the drivers' waits take no time."""
+
+    @staticmethod
+    def monotonic() -> float:
+        return time.monotonic()
+
+    @staticmethod
+    def sleep(seconds: float) -> None:
+        time.sleep(seconds)
+
+
 class GarbledReply(StageError):
     """A reply that is not printable ASCII or not in the protocol (wrong baud, noise); `raw` is what came."""
 
@@ -27,11 +42,16 @@ class GarbledReply(StageError):
 
 
 class SerialLine:
-    """A serial port carrying lines of ASCII text; port failures become one-line StageErrors."""
+    """A serial port carrying lines of ASCII text; port failures become one-line StageErrors.
+
+    `clock` and `open_port` (pyserial's `serial.Serial` by default) are where the drivers get the time and
+    the port: a test replaces both before opening (tests/exchanges.py)."""
 
     def __init__(self, kind: str, path: str, baud: int, timeout_s: float):
         self.kind, self.path, self.baud, self.timeout_s = kind, path, baud, timeout_s
         self.name = f"{kind} {path}"
+        self.clock = Clock()
+        self.open_port = serial.Serial
         self._port: serial.Serial | None = None
         #: the start of a line whose end had not arrived by the last deadline (a late reply)
         self._partial = b""
@@ -42,7 +62,7 @@ class SerialLine:
     def open(self) -> None:
         try:
             exclusive = True if os.name == "posix" else None
-            self._port = serial.Serial(self.path, self.baud, timeout=self.timeout_s, exclusive=exclusive)
+            self._port = self.open_port(self.path, self.baud, timeout=self.timeout_s, exclusive=exclusive)
         except (serial.SerialException, OSError) as e:
             raise self._open_error(e) from None
 
@@ -125,7 +145,7 @@ class SerialLine:
         reply's length without an end (a wrong baud rate)."""
         port = self._require()
         try:
-            port.timeout = max(0.0, deadline_s - time.monotonic())
+            port.timeout = max(0.0, deadline_s - self.clock.monotonic())
             raw = self._partial + port.read_until(b"\n")
         except (serial.SerialException, OSError) as e:
             raise self._disconnected(f"waiting for the reply to {what}", e) from None

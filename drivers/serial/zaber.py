@@ -18,7 +18,6 @@ docs/stages.md lists them all with causes and fixes.
 from __future__ import annotations
 
 import re
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -188,7 +187,7 @@ class ZaberStage(Stage):
         self._request(command)
         self._wait_idle(command, self.move_timeout_s, homing=False)
         if self.settle_s > 0:
-            time.sleep(self.settle_s)
+            self.link.clock.sleep(self.settle_s)
         measured = self.position_m()
         self.check_arrived(position_m, measured)
         return measured
@@ -221,10 +220,10 @@ class ZaberStage(Stage):
         body = f"{self.device} {axis} {self._message_id:02d} {command}"
         what = repr(f"/{self.device} {axis} {command}")
         self.link.write(f"/{body}:{checksum(body)}\n".encode("ascii"), what)
-        deadline = time.monotonic() + self.timeout_s
+        deadline = self.link.clock.monotonic() + self.timeout_s
         while True:
             line = self.link.read_line(deadline, what)
-            if line is None or (time.monotonic() > deadline and (not line or line[0] in "#!")):
+            if line is None or (self.link.clock.monotonic() > deadline and (not line or line[0] in "#!")):
                 raise self.link.error(
                     f"no reply to {what} within {self.timeout_s:.1f} s",
                     f"{CABLE}, that it speaks ASCII at baud={self.link.baud} and is device {self.device}",
@@ -262,7 +261,7 @@ class ZaberStage(Stage):
 
     def _wait_idle(self, what: str, timeout_s: float, *, homing: bool, check_flags: bool = True) -> ZaberReply:
         """Poll 'get pos' until the axis is IDLE; raise on fault or interruption flags."""
-        deadline = time.monotonic() + timeout_s
+        deadline = self.link.clock.monotonic() + timeout_s
         while True:
             reply = self._request("get pos")
             if check_flags and reply.flag != "--" and not (homing and reply.flag in ("WR", "WH")):
@@ -270,12 +269,12 @@ class ZaberStage(Stage):
                     self._check_flag(flag, what, homing=homing)
             if not reply.busy:
                 return reply
-            if time.monotonic() > deadline:
+            if self.link.clock.monotonic() > deadline:
                 raise self.link.error(
                     f"still moving {timeout_s:.1f} s after {what!r}",
                     f"check the rail for obstruction and the stage's speed setting",
                 )
-            time.sleep(self.poll_s)
+            self.link.clock.sleep(self.poll_s)
 
     def _all_flags(self, top: str) -> list[str]:
         """Every warning flag now set (a reply shows only the most urgent), most urgent first."""
