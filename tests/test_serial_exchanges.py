@@ -458,10 +458,14 @@ def test_grbl_soft_limits_the_rail_cannot_respect_are_named_before_anything_move
     assert "runs over machine X 0..3000 mm" in problem
 
 
-def test_grbl_hard_limit_mid_move_is_alarm_1_and_nothing_else_is_sent():
+def test_grbl_hard_limit_mid_move_is_alarm_1_then_silence_until_homing_resets():
     stage = grbl()
     script = [*connect(), *home(), *move(2200.0, report("Run", 800.0, 3000), report("Run", 1200.0, 3000),
                                          b"ALARM:1\r\n[MSG:Reset to continue]\r\n")]
+    recover = [(b"?", None)] * 3 + [*soft_reset(UNLOCK), (b"?", report("Alarm", 1200.0, extra=WCO)),
+                                    (b"$H\n", OK), (b"G90 G21\n", OK)]  # silent after ALARM:1 until a reset
+    script += [*recover, *move(1700.0, report("Run", 1000.0, 3000), report("Idle", 1700.0)),
+               (b"?", report("Idle", 1700.0))]
     with expected_exchanges(stage, script):  # the alarm stopped the motors itself: no hold, no reset
         stage.open()
         stage.home()
@@ -469,6 +473,10 @@ def test_grbl_hard_limit_mid_move_is_alarm_1_and_nothing_else_is_sent():
                                 "free the carriage from the limit switch"):
             stage.move_to(2.5)
         assert stage.link.position_lost and stage.link.alarm == "ALARM:1"
+        with raises_stage_error(PORT, "not homed"):
+            stage.move_to(2.0)
+        stage.home()
+        assert stage.move_to(2.0) == pytest.approx(2.0)
 
 
 def test_grbl_an_alarm_pushed_between_requests_is_raised_by_the_next_one():
@@ -780,18 +788,32 @@ def test_zaber_refuses_moves_before_homing_and_beyond_the_travel_without_sending
         stage.home()
         with raises_stage_error(ZPORT, "outside the travel limits 0.300-3.300 m"):
             stage.move_to(3.35)
+        with raises_stage_error(ZPORT, "outside the travel limits"):
+            stage.move_to(0.1)
 
 
-def test_zaber_position_outside_the_tolerance_fails_the_move():
+def test_zaber_the_very_end_of_the_travel_is_allowed():
     stage = zaber(settle_s=0.0)
-    steps = steps_of(2.0)
+    end = steps_of(3.3)
+    with expected_exchanges(stage, [*zconnect(limit_max=end), *zhome(), *zmove(13, end, end // 2)]):
+        stage.open()
+        stage.home()
+        assert stage.move_to(stage.limits_m[1]) == pytest.approx(3.3, abs=1e-6)
+
+
+def test_zaber_position_outside_the_tolerance_fails_the_move_and_inside_it_is_measured():
+    stage = zaber(settle_s=0.0)
+    steps, back = steps_of(2.0), steps_of(1.5)
     script = [*zconnect(), *zhome(), (z(13, f"move abs {steps}"), zr(13, "0", "BUSY")),
-              (z(14, "get pos"), zr(14, str(steps))), (z(15, "get pos"), zr(15, str(steps + 15748)))]
+              (z(14, "get pos"), zr(14, str(steps))), (z(15, "get pos"), zr(15, str(steps + 15748))),  # 3 mm
+              (z(16, f"move abs {back}"), zr(16, "0", "BUSY")),
+              (z(17, "get pos"), zr(17, str(back))), (z(18, "get pos"), zr(18, str(back + 2100)))]  # 0.4 mm
     with expected_exchanges(stage, script):
         stage.open()
         stage.home()
         with raises_stage_error(ZPORT, "commanded 2.0000 m but measured 2.0030 m", "tolerance 1.0 mm"):
             stage.move_to(2.0)
+        assert stage.move_to(1.5) == pytest.approx(1.5004, abs=1e-6)
 
 
 def test_zaber_reply_checksums_are_checked_when_the_device_sends_them():
@@ -837,6 +859,16 @@ def test_zaber_an_unanswered_command_is_an_error_and_the_next_works():
             stage.position_m()
         assert port.clock.now - before == pytest.approx(2.0)
         assert stage.position_m() == pytest.approx(0.3)
+
+
+def test_zaber_an_unanswered_move_is_an_error_and_nothing_more_is_sent():
+    stage = zaber()
+    steps = steps_of(2.0)
+    with expected_exchanges(stage, [*zconnect(), *zhome(), (z(13, f"move abs {steps}"), None)]):
+        stage.open()
+        stage.home()
+        with raises_stage_error(ZPORT, f"no reply to '/1 1 move abs {steps}' within 2.0 s"):
+            stage.move_to(2.0)
 
 
 def test_zaber_noise_is_reported_as_a_garbled_reply():
