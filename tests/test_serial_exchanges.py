@@ -3,10 +3,11 @@
 Each test gives the driver a scripted port (tests/exchanges.py): the (write, reply) pairs, in order, that the
 controller would have with it, and fails at the first write that is not the next one expected. The port keeps
 virtual time, so timeouts, polling and settling take none. What the controllers say is what the recorded
-firmware said (tests/golden/grbl/, tests/test_grbl_golden.py) and what the simulators that are held to it say
-to the driver over a real pty (tests/test_serial_stages.py, tests/test_zaber_protocol.py): where they differ
-from what one might expect of GRBL or Zaber, they win. Those pty tests, and the ones against the GRBL firmware
-itself (tests/test_grbl_firmware*.py), stay as the proof that the exchanges here are the real ones.
+firmware said (tests/golden/grbl/, tests/test_grbl_golden.py) and what the simulators, held to it (and the Zaber
+one to zaber-motion: tests/test_zaber_protocol.py), said to the driver over a real pty in the tests these
+replace (once in tests/test_serial_stages.py): where they differ from what one might expect of GRBL or Zaber,
+they win. The tests against the GRBL firmware itself (tests/test_grbl_firmware*.py) and the pty tests left stay
+as the proof that the exchanges here are the real ones.
 """
 
 from __future__ import annotations
