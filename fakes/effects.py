@@ -5,8 +5,8 @@ Every effect overrides only the hooks it needs (see `fakes.physics` for the pipe
   image_noise(field)      add to field.image_var_e2
   disparity_noise(field)  add to field.sigma_d2_px2
   frame(ctx, d_px, valid) change one frame's disparities (px) or validity, in place
-They share no code with the models' effects (rig/models/effects/builtin.py); the table
-`rig.simulation.scenarios.MODEL_EFFECT_FOR` says which model effect each one should be diagnosed as.
+They share no code with the models' effects (rig/models/effects/builtin/); a model effect names the one here that
+simulates its physics as its `twin` (`rig.simulation.scenarios.MODEL_EFFECT_FOR` collects them).
 Parameters in px are native sensor pixels (848x480); a smaller rendered image scales them.
 """
 

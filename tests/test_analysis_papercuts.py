@@ -15,17 +15,23 @@ from drivers.folder import MANIFEST_NAME
 from protocols.folder_import import import_folder
 from protocols.recording import Recording
 from rig.cli import main
-from rig.models import Catalogue, ModelData, Param, effect, noise_floor
+from rig.models import Catalogue, ModelData, Param, TermEffect, noise_floor
 
 #: an illumination factor that does what a larger k does: degenerate with k
 DEGENERATE = '''
-from rig.models import Param, effect
+from rig.models import Param, TermEffect, register
 
-@effect(stage="illumination", params=[Param("gain", 1.0, 0.1, 10.0, "1", "a constant factor on the light")],
-        signature="the error is larger everywhere by the same factor")
-def gain(c, gain):
+@register
+class Gain(TermEffect):
     """A constant factor on the shot-noise variance: the same as a larger k."""
-    return gain + 0 * c.z_m
+
+    name = "gain"
+    stage = "illumination"
+    params = (Param("gain", 1.0, 0.1, 10.0, "1", "a constant factor on the light"),)
+    signature = "the error is larger everywhere by the same factor"
+
+    def term(self, c, gain):
+        return gain + 0 * c.z_m
 '''
 
 
@@ -93,16 +99,23 @@ def test_a_model_with_a_dangling_or_repeated_effect_is_refused(small_recording, 
 
 
 def test_two_effects_of_one_name_do_not_silently_compose():
-    @effect(stage="disparity", params=[Param("sigma_px", 0.01, 0.0, 5.0, "px", "a floor")], signature="short range",
-            name="noise_floor")
-    def other_floor(c, sigma_px):
+    class OtherFloor(TermEffect):
         """Another noise floor."""
-        return sigma_px**2 + 0 * c.z_m
+
+        name = "noise_floor"
+        stage = "disparity"
+        params = (Param("sigma_px", 0.01, 0.0, 5.0, "px", "a floor"),)
+        signature = "short range"
+
+        def term(self, c, sigma_px):
+            return sigma_px**2 + 0 * c.z_m
+
+    other_floor = OtherFloor()
 
     from rig.models import active
 
     assert (active + noise_floor) + noise_floor == active + noise_floor  # the same effect again changes nothing
-    with pytest.raises(ValueError, match="has an effect noise_floor already .*NoiseFloor.*other_floor"):
+    with pytest.raises(ValueError, match="has an effect noise_floor already .*NoiseFloor.*OtherFloor"):
         (active + noise_floor) + other_floor
 
 

@@ -114,7 +114,7 @@ def test_an_effect_that_cannot_be_fitted_is_named_with_its_reason(tmp_path):
     from rig.diagnosis import diagnose
     from rig.diagnosis.text import render_text
     from rig.models import Catalogue, ModelData
-    from rig.models.effects.builtin import Effect
+    from rig.models.parts.component import Effect
     from rig.models.parts.parameters import Param
     from rig.models.parts.prediction import EffectStage
 

@@ -120,22 +120,120 @@ def test_a_name_registered_twice_in_one_file_is_an_error_naming_both(tmp_path, s
 
 def test_registering_a_built_in_name_again_is_an_error_naming_both():
     namespace = {"__name__": "rig.models.another", "Effect": Effect, "EffectStage": EffectStage, "register": register}
-    with pytest.raises(EffectFileError, match=r"'noise_floor' registered twice: by NoiseFloor \(rig/models/effects/builtin\.py:\d+\) "
-                                              r"and by Floor2"):
+    with pytest.raises(EffectFileError, match=r"'noise_floor' registered twice: by NoiseFloor "
+                                              r"\(rig/models/effects/builtin/noise_floor\.py:\d+\) and by Floor2"):
         exec("@register\nclass Floor2(Effect):\n    name = 'noise_floor'\n    stage = EffectStage.DISPARITY\n",
              namespace)
 
 
-def test_every_built_in_effect_is_found_by_name_without_an_export_list():
+def test_every_built_in_effect_is_one_module_named_for_it_and_found_by_name():
     import rig.models
-    import rig.models.effects.builtin
 
+    assert list(rig.models.EFFECTS) == ["noise_floor", "read_noise", "ambient", "slant_range", "incidence", "outliers",
+                                        "quantization", "drift", "censoring"]  # by position: seeds keep their scenarios
     for name, e in rig.models.EFFECTS.items():
-        assert getattr(rig.models, name) is e and getattr(rig.models.effects.builtin, name) is e
-        assert getattr(rig.models, type(e).__name__) is type(e)
-        assert e.defined_at.startswith("rig/models/effects/builtin.py:")
+        assert getattr(rig.models, name) is e and getattr(rig.models, type(e).__name__) is type(e)
+        assert type(e).__module__ == f"rig.models.effects.builtin.{name}"
+        assert e.defined_at.startswith(f"rig/models/effects/builtin/{name}.py:")
+        assert e.twin is None or e.twin in fakes.effects.EFFECTS, (name, e.twin)  # the simulator's own effect
     with pytest.raises(AttributeError):
         rig.models.no_such_effect  # noqa: B018
+
+
+#: docs/architecture.md's example: the projector's beam falling as cos^n off axis, which the catalogue lacks and the
+#: simulator has (fakes/effects.py's beam_falloff, the blind test's "not in the catalogue" scenario until now)
+BEAM_MODULE = '''
+"""`beam_cos`: the projector's beam falls off as cos^n of the off-axis angle."""
+
+import numpy as np
+
+from rig.models import Effect, EffectStage, Param, register
+from rig.models.parts.tangents import plus, scale
+
+
+@register
+class BeamCos(Effect):
+    """The projector's beam falls off as cos^n of the off-axis angle: the shot-noise variance grows as
+    (1 + rho^2)^(n / 2)."""
+
+    name = "beam_cos"
+    stage = EffectStage.ILLUMINATION
+    params = (Param("n", 2.0, 0.0, 12.0, "1", "exponent of the beam's cos^n fall-off"),)
+    signature = "the error grows towards the image corners faster than slant range explains"
+    explanation = "the projector's beam is brightest on its axis and falls off as cos^n away from it"
+    twin = "beam_falloff"
+    position = 10
+
+    def scenario(self, rng):
+        return {"n": rng.uniform(3.0, 6.0)}
+
+    def applicable(self, d):
+        return None if d.projector_on.any() else "beam_cos needs the projector on"
+
+    def apply(self, pred, p, d):
+        pred.illum = pred.illum * np.where(d.projector_on, (1.0 + d.rho2) ** (0.5 * p.n), 1.0)
+
+    def apply_tangent(self, pred, p, d, t):
+        factor = np.where(d.projector_on, (1.0 + d.rho2) ** (0.5 * p.n), 1.0)
+        dfactor = factor * np.where(d.projector_on, 0.5 * np.log1p(d.rho2), 0.0)
+        own = [(i, pred.illum * dfactor)] if (i := t.row(self, "n")) is not None else []
+        t.illum = plus(scale(t.illum, factor), t.seeded(own))
+        pred.illum = pred.illum * factor
+'''
+
+#: run in a fresh interpreter: the folder holding the new module joins the built-in effects' package, as a module
+#: saved in rig/models/effects/builtin/ does; then everything that should know about it is asked
+ADD_CHECK = '''
+import json, sys
+import numpy as np
+import rig.models.effects.builtin as builtin
+builtin.__path__.append(sys.argv[1])
+found = builtin.discover()
+from rig.models import EFFECTS, Catalogue, ModelData, parse_model
+from rig.models.fitting.likelihood import model_loglik_gradient
+from rig.simulation.scenarios import CHOICES, NOT_IN_CATALOGUE, expected, hidden_scenario, record_scenario
+from rig.diagnosis.candidates import applicable_candidates
+e = EFFECTS["beam_cos"]
+sc = hidden_scenario(5, "beam_falloff", width=48, frames=30)
+path = record_scenario(sc, sys.argv[1] + "/beam.h5")
+d = ModelData.from_recording(path)
+model = Catalogue.default().parse("active+beam_cos")
+fit = model.fit(d)
+values = dict(fit.values, **{"beam_cos.n": fit.values["beam_cos.n"] + 3 * fit.errors["beam_cos.n"]})  # off the top
+ll, grad = model_loglik_gradient(model, values, d, ["k", "beam_cos.n"])
+h = 1e-4 * values["beam_cos.n"]
+up, down = dict(values, **{"beam_cos.n": values["beam_cos.n"] + h}), dict(values, **{"beam_cos.n": values["beam_cos.n"] - h})
+print(json.dumps({"found": found, "order": list(EFFECTS), "module": type(e).__module__,
+                  "in_choices": "beam_falloff" in CHOICES, "not_in_catalogue": sorted(NOT_IN_CATALOGUE),
+                  "expected": expected("beam_falloff").named, "hidden_n": sc.params["n"],
+                  "n": fit.values["beam_cos.n"], "se": fit.errors["beam_cos.n"],
+                  "grad": grad[1], "diff": (model.loglik(up, d) - model.loglik(down, d)) / (2 * h),
+                  "candidate": "beam_cos" in [c.name for c in applicable_candidates(parse_model("active"), d)]}))
+'''
+
+
+def test_adding_an_effect_is_one_module_that_everything_finds(tmp_path):
+    """docs/architecture.md's 'add an effect': one module, found by the registry. Here it is saved in a folder
+    joined to the built-in effects' package, in a fresh interpreter (so the catalogue of this test session is left
+    as it is): the effect takes its place in the catalogue, fits with its derivative, is a candidate of the
+    diagnosis, and the blind test now hides its twin (the simulator's beam_falloff) and expects it by name."""
+    import subprocess
+    import sys
+
+    (tmp_path / "beam_cos.py").write_text(BEAM_MODULE)
+    r = subprocess.run([sys.executable, "-c", ADD_CHECK, str(tmp_path)], capture_output=True, text=True, timeout=300,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    assert "beam_cos" in got["found"] and got["order"][-1] == "beam_cos" and got["order"][0] == "noise_floor"
+    assert got["module"] == "rig.models.effects.builtin.beam_cos"
+    assert got["in_choices"] and "beam_falloff" not in got["not_in_catalogue"]
+    assert got["expected"] == ["beam_cos"] and got["candidate"]
+    # the fit recovers the hidden exponent: cos^n of the off-axis angle is (1 + rho^2)^(-n/2) exactly
+    assert abs(got["n"] - got["hidden_n"]) < 4 * got["se"], got
+    # the analytic derivative, 3 standard errors off the maximum (where it is about -3 / se nats per unit), against
+    # central differences, whose own error (h^2 / 6 times the third derivative, h = 1e-4 n) is far below 1e-4 of it
+    assert abs(got["diff"]) * got["se"] > 1.0 and abs(got["grad"] - got["diff"]) < 1e-4 * abs(got["diff"]), got
 
 
 def test_the_models_package_has_no_import_cycle_even_for_type_checkers():

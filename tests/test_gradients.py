@@ -132,7 +132,7 @@ def test_the_stop_near_the_formats_end_takes_the_quadrature(fine):
     assert (a > -6.0).sum() > 10 and math.isclose(z_max, 3.27675)
 
 
-#: a user's effect at each stage, as a function of the covariates (`rig.models.effects.user_effects`)
+#: a user's effect at each stage, as a term of the covariates (`rig.models.effects.user_effects.TermEffect`)
 USER_STAGES = {
     "illumination": (lambda c, n: 1.0 / np.maximum(c.cos_off_axis, 0.1) ** n, Param("n", 1.5, 0.0, 10.0, "1", "power")),
     "image_noise": (lambda c, r: r * c.z_m**2, Param("r", 0.05, 0.0, 10.0, "1", "ratio at 1 m")),
@@ -146,14 +146,12 @@ USER_STAGES = {
 def test_a_users_effect_has_the_likelihoods_gradient_at_every_stage(fine, stage):
     """A user's effect has no formula rig knows: its own derivative is the function's central differences (the
     function alone), carried by the chain rule like any other's."""
-    from rig.models.effects.user_effects import UserEffect
+    from rig.models.effects.user_effects import TermEffect
 
     fn, param = USER_STAGES[stage]
-
-    def users(c, **kw):
-        return fn(c, *kw.values())
-
-    e = UserEffect(users, stage=stage, params=(param,), signature="test", name=f"users_{stage}")
+    users = type(f"Users_{stage}", (TermEffect,), {"name": f"users_{stage}", "stage": stage, "params": (param,),
+                                                   "signature": "test", "term": lambda self, c, **kw: fn(c, *kw.values())})
+    e = users()
     model = parse_model("power_law+noise_floor") + e
     assert analytic(model)
     values = _point(model, fine, 5)
@@ -174,7 +172,7 @@ def test_a_users_effect_has_the_likelihoods_gradient_at_every_stage(fine, stage)
 def test_the_outlier_rows_chain_rule_against_differences_on_every_branch():
     """`_outlier_row`'s derivatives in var0, fraction and width against fourth-order differences of its own value,
     on rows where the mismatches' lower end is -w, the format's end, and (wide mismatches far out) nearly w."""
-    from rig.models.effects import builtin as effects
+    from rig.models.effects.builtin import outliers as effects
 
     # the Python of the row: compiled on its own it is a second copy of the kernel it is inlined into (1.3 s to build)
     _outlier_row = getattr(effects._outlier_row, "py_func", effects._outlier_row)

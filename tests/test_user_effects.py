@@ -12,15 +12,21 @@ from rig.models.catalogue import ENTRY_POINT_GROUP
 from rig.models.effects.user_effects import EffectFileError, load_effects
 from rig.simulation.scenarios import hidden_scenario, record_scenario
 
-#: the built-in noise floor (rig/models/effects/builtin.py), written again as a user would
+#: the built-in noise floor (rig/models/effects/builtin/noise_floor.py), written again as a user would
 MY_FLOOR = '''
-from rig.models import Param, effect
+from rig.models import Param, TermEffect, register
 
-@effect(stage="disparity", params=[Param("sigma_px", 0.01, 0.0, 5.0, "px", "disparity noise floor")],
-        signature="the error exceeds k Z^lambda most at short range")
-def my_floor(c, sigma_px):
+@register
+class MyFloor(TermEffect):
     """A disparity noise floor, written by hand."""
-    return sigma_px ** 2 + 0 * c.z_m
+
+    name = "my_floor"
+    stage = "disparity"
+    params = (Param("sigma_px", 0.01, 0.0, 5.0, "px", "disparity noise floor"),)
+    signature = "the error exceeds k Z^lambda most at short range"
+
+    def term(self, c, sigma_px):
+        return sigma_px ** 2 + 0 * c.z_m
 '''
 
 
@@ -61,10 +67,12 @@ BAD_FILES = [
     ("missing.py", None, "does not exist"),
     ("syntax.py", "def f(:\n", "syntax error"),
     ("none.py", "x = 1\n", "defines no effect"),
-    ("stage.py", MY_FLOOR.replace('stage="disparity"', 'stage="optics"'), "is not one of"),
+    ("stage.py", MY_FLOOR.replace('stage = "disparity"', 'stage = "optics"'), "is not one of"),
     ("bounds.py", MY_FLOOR.replace("0.01, 0.0, 5.0", "9.0, 0.0, 5.0"), "outside its bounds"),
-    ("clash.py", MY_FLOOR.replace("def my_floor", "def noise_floor"), "has the name of the built-in"),
-    ("raises.py", "from rig.models import effect\nraise RuntimeError('boom')\n", "running it failed"),
+    ("clash.py", MY_FLOOR.replace('name = "my_floor"', 'name = "noise_floor"'), "has the name of the built-in"),
+    ("raises.py", "from rig.models import TermEffect\nraise RuntimeError('boom')\n", "running it failed"),
+    ("no_term.py", MY_FLOOR.replace("def term(self", "def terms(self"), "write its term"),
+    ("decorator.py", "from rig.models import effect\n", "running it failed"),
 ]
 
 
@@ -92,7 +100,7 @@ def test_an_installed_package_publishes_effects_by_entry_point(tmp_path, monkeyp
     info = pkg / "labfx-1.0.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: labfx\nVersion: 1.0\n")
-    (info / "entry_points.txt").write_text(f"[{ENTRY_POINT_GROUP}]\nmy_floor = labfx:my_floor\n")
+    (info / "entry_points.txt").write_text(f"[{ENTRY_POINT_GROUP}]\nmy_floor = labfx:MyFloor\n")
     monkeypatch.syspath_prepend(str(pkg))
     cat = Catalogue.default()
     assert "my_floor" in cat.effects and cat.sources["my_floor"] == "entry point my_floor"
@@ -100,7 +108,7 @@ def test_an_installed_package_publishes_effects_by_entry_point(tmp_path, monkeyp
 
 
 def test_load_effects_finds_every_effect_in_a_file(tmp_path):
-    two = MY_FLOOR + MY_FLOOR.replace("my_floor", "other_floor")
+    two = MY_FLOOR + MY_FLOOR.replace("my_floor", "other_floor").replace("MyFloor", "OtherFloor")
     found = load_effects(write(tmp_path, two))
     assert sorted(e.name for e in found) == ["my_floor", "other_floor"]
     with pytest.raises(EffectFileError, match="not a unique identifier"):

@@ -16,8 +16,8 @@ Four subpackages, from the bottom up, and the model algebra on top of them:
   one fitted-model type with one report (`result`);
 - `fitting`: the likelihood and its gradient, maximum likelihood for any model (`optimise`), grouped nodes for
   large data, the paper's closed-form estimator, when to stop;
-- `effects`: the built-in physical effects, the free-form empirical shapes, effects written by the user
-  (@effect, load_effects) and what the depth format fixes for every model (`file_physics`);
+- `effects`: the built-in physical effects (`builtin/`, one module each), the free-form empirical shapes, effects
+  written as a term of the covariates (`TermEffect`, load_effects) and what the depth format fixes for every model (`file_physics`);
 - on top: `composition` (`Model`: a base plus effects), `bases` (the power law), `catalogue` (every effect a model
   can use, by name), `parse` (models from text), `paper_fit` (the paper's fit as a fitted model), `parallel`
   (fits in worker processes) and `export` (a fit as a file, `rig.noise-model/1`).
@@ -31,7 +31,7 @@ from .catalogue import Catalogue
 from .composition import Model
 from .data.model_data import ModelData, load_samples
 from .effects.empirical import empirical
-from .effects.user_effects import Covariates, effect, load_effects
+from .effects.user_effects import Covariates, TermEffect, load_effects
 from .fitting.closed_form import PowerLawEstimate, power_law_mle
 from .fitting.optimise import fit_model, with_errors, with_exact_loglik
 from .paper_fit import fit_power_law
@@ -46,7 +46,7 @@ __all__ = [
     "parse_model", "PowerLawEstimate", "power_law_mle", "ModelData", "load_samples", "EFFECTS", "Effect", "register",
     "fit_model", "with_errors", "with_exact_loglik", "fit_power_law", "EffectStage", "Prediction", "ModelFit",
     "likelihood_ratio",
-    "Catalogue", "empirical", "Covariates", "EffectFileError", "effect", "load_effects",
+    "Catalogue", "empirical", "Covariates", "EffectFileError", "TermEffect", "load_effects",
 ]
 
 

@@ -17,9 +17,9 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from .bases import BASES
-from .parts.component import describe
+from .parts.component import Effect, describe, registered_by
 from .composition import Model
-from .effects.builtin import EFFECTS, Effect
+from .effects.builtin import EFFECTS
 from .effects.empirical import empirical, is_empirical
 from .effects.user_effects import EffectFileError, load_effects
 
@@ -47,8 +47,7 @@ class Catalogue:
             except Exception as e:
                 raise EffectFileError(f"the effect plugin {ep.name} ({ep.value}) failed to load ({type(e).__name__}: {e}); "
                                       "reinstall or remove the package that provides it") from None
-            found = loaded if isinstance(loaded, (list, tuple)) else [loaded]
-            cat = cat.with_effects([e for e in found if isinstance(e, Effect)], f"entry point {ep.name}")
+            cat = cat.with_effects(_as_effects(loaded), f"entry point {ep.name}")
         return cat
 
     def with_effects(self, effects: list[Effect], source: str) -> "Catalogue":
@@ -93,3 +92,15 @@ class Catalogue:
                                  + ("" if self.user_effects() else "; load your own with --effects FILE.py"))
             m = m + self.effects[name]
         return m
+
+
+def _as_effects(loaded: object) -> list[Effect]:
+    """What an entry point names, as effects: an effect, an effect's class (the instance @register made of it), or a
+    list of them."""
+    out = []
+    for x in loaded if isinstance(loaded, (list, tuple)) else [loaded]:
+        if isinstance(x, type) and issubclass(x, Effect):
+            x = next((e for e in registered_by(x.__module__) if type(e) is x), None) or x()
+        if isinstance(x, Effect):
+            out.append(x)
+    return out

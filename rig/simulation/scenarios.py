@@ -34,45 +34,31 @@ from fakes.effects import make_effect
 from fakes.stage import FakeStage
 from fakes.world import FakeWorld, Wall
 from protocols import Runner, perpendicular
+from rig.models.effects.builtin import EFFECTS
+from rig.models.parts.component import Effect
 
-#: realistic parameter ranges for each effect the fake camera can hide (see fakes/effects.py)
-HIDDEN: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
-    "noise_floor": lambda r: {"sigma_px": r.uniform(0.02, 0.05)},
-    "read_noise": lambda r: {"read_e": r.uniform(8.0, 20.0)},
-    "ambient": lambda r: {"ambient_e_per_ms": r.uniform(10.0, 40.0)},
-    "slant_range": lambda r: {},
-    "incidence": lambda r: {},
-    "outliers": lambda r: {"fraction": r.uniform(0.005, 0.03), "width_px": r.uniform(0.2, 0.6)},
-    "quantization": lambda r: {"depth_unit_mm": r.uniform(0.3, 0.6)},
-    "drift": lambda r: {"amplitude_px": r.uniform(0.05, 0.15), "tau_s": r.uniform(5.0, 15.0)},
-    "censoring": lambda r: {"threshold_px": r.uniform(0.15, 0.3)},
-}
+#: the catalogue's effects that have a blind scenario, by scenario name: their twin in the simulator
+#: (fakes/effects.py), or the effect's own name where the recording's format simulates it (quantization: a coarse
+#: depth unit, the recording's own unit, which the model's quantization effect describes; the fake camera's
+#: effect of that name is a disparity step and is not used by the scenarios)
+_WITH_SCENARIO = {(e.twin or e.name): e for e in EFFECTS.values() if type(e).scenario is not Effect.scenario}
+#: realistic parameter ranges for each effect the fake camera can hide: each effect's own `scenario`
+#: (rig/models/effects/builtin/), in the catalogue's order
+HIDDEN: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {k: e.scenario for k, e in _WITH_SCENARIO.items()}
 CHOICES = ["none", *HIDDEN]
 
-#: The one place where the simulator's effects and the models' effects meet. They are written
-#: independently (fakes/effects.py samples the physics, rig/models/effects/builtin.py predicts it
-#: analytically) and share no code; this table says which model effect the diagnosis should
-#: name when a scenario hides a simulator effect. The "quantization" scenario is a coarse depth
-#: unit (the recording's own unit), which the model's quantization effect describes; the fake
-#: camera's effect of that name is a disparity step and is not used by the scenarios.
-MODEL_EFFECT_FOR = {
-    "noise_floor": "noise_floor",
-    "read_noise": "read_noise",
-    "ambient": "ambient",
-    "slant_range": "slant_range",
-    "incidence": "incidence",
-    "outliers": "outliers",
-    "quantization": "quantization",
-    "drift": "drift",
-    "censoring": "censoring",
-}
+#: The one place where the simulator's effects and the models' effects meet, read from each model effect's `twin`:
+#: they are written independently (fakes/effects.py samples the physics, rig/models/effects/builtin/ predicts it
+#: analytically) and share no code; this table says which model effect the diagnosis should name when a scenario
+#: hides a simulator effect.
+MODEL_EFFECT_FOR = {k: e.name for k, e in _WITH_SCENARIO.items()}
 #: a depth unit coarser than the noise at short range (1-4 mm; noise 0.25-50 mm over the sweep)
 COARSE_DEPTH_UNIT = "coarse_depth_unit"
 #: pairs of catalogue effects hidden together
 PAIRS = ("slant_range+noise_floor", "incidence+outliers", "drift+censoring")
 #: effects the model catalogue lacks (fakes/effects.py), their parameter ranges, and the covariates the
 #: residual they leave may rightly be said to follow ("tails": the distribution's shape; "time": the frame mean)
-NOT_IN_CATALOGUE: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], tuple[str, ...]]] = {
+_SIMULATOR_ONLY: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], tuple[str, ...]]] = {
     "beam_falloff": (lambda r: {"n": r.uniform(3.0, 6.0)}, ("radius",)),
     "light_falloff": (lambda r: {"p": r.uniform(2.5, 3.5)}, ("slant", "brightness")),
     "noisy_confidence": (lambda r: {"threshold_px": r.uniform(0.2, 0.3), "score_noise_px": r.uniform(0.06, 0.12)},
@@ -80,6 +66,9 @@ NOT_IN_CATALOGUE: dict[str, tuple[Callable[[np.random.Generator], dict[str, floa
     "correlated_noise": (lambda r: {"sigma_px": r.uniform(0.03, 0.06), "length_px": r.uniform(16.0, 32.0)}, ("time",)),
     "scale_mixture": (lambda r: {"fraction": r.uniform(0.05, 0.1), "factor": r.uniform(3.0, 4.0)}, ("tails",)),
 }
+#: of those, the ones no catalogue effect names as its twin (an effect added to the catalogue for one of them turns
+#: its scenario into one the diagnosis must name the effect for)
+NOT_IN_CATALOGUE = {k: v for k, v in _SIMULATOR_ONLY.items() if k not in MODEL_EFFECT_FOR}
 #: frames that are not independent: a camera's temporal post-filter (the fake camera's temporal_alpha, exponential
 #: smoothing with weight alpha on the new frame); the diagnosis must say "frames not independent", never "within noise"
 NOT_INDEPENDENT: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {

@@ -1,16 +1,22 @@
-"""Effects written by the user, in a short Python file, that compose, fit and rank like the built-in ones.
+"""Effects written as a per-pixel term of the covariates, in a short Python file: they compose, fit and rank like
+the built-in ones, and are classes registered the same way.
 
-    from rig.models import Param, effect
+    from rig.models import Param, TermEffect, register
 
-    @effect(stage="illumination",
-            params=[Param("n", 2.0, 0.0, 12.0, "1", "exponent of the beam's cos^n fall-off")],
-            signature="the error grows towards the image corners faster than slant range explains")
-    def beam_falloff(c, n):
+    @register
+    class BeamFalloff(TermEffect):
         '''The projector's beam falls off as cos^n of the off-axis angle.'''
-        return c.cos_off_axis ** -n          # the shot-noise variance grows as 1 / light
 
-The function gets the covariates `c` (`Covariates`) and the parameters by name, and returns, per
-pixel, what its stage takes:
+        name = "beam_falloff"
+        stage = "illumination"
+        params = (Param("n", 2.0, 0.0, 12.0, "1", "exponent of the beam's cos^n fall-off"),)
+        signature = "the error grows towards the image corners faster than slant range explains"
+
+        def term(self, c, n):
+            return c.cos_off_axis ** -n          # the shot-noise variance grows as 1 / light
+
+`term` gets the covariates `c` (`Covariates`) and the parameters by name, and returns, per pixel, what its
+stage takes:
 
   illumination  a factor on the shot-noise variance: 1 / the light's relative change (projector on)
   image_noise   image-noise variance relative to the pattern's shot noise, added (read noise, ambient light)
@@ -18,9 +24,10 @@ pixel, what its stage takes:
   range         range variance in m^2, added
   variance      a factor on the total variance so far
 
-The effect's name is the function's; its explanation is the docstring's first line. Load the
-file with `--effects FILE.py` (rig fit, compare, diagnose; the TUI's Results screen), or publish
-effects from an installed package under the entry-point group `rig.effects`.
+The explanation is the docstring's first line. A built-in effect is the same kind of class, written against the
+prediction itself (`Effect.apply`, `apply_tangent`) where its physics needs more than a term. Load the file with
+`--effects FILE.py` (rig fit, compare, diagnose; the TUI's Results screen), or publish effects from an installed
+package under the entry-point group `rig.effects`.
 """
 
 from __future__ import annotations
@@ -32,11 +39,11 @@ import sys
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
-from ..parts.component import EFFECTS, Effect, EffectFileError, add, forget, registered_by
+from ..parts.component import EFFECTS, Effect, EffectFileError, forget, registered_by
 from ..data.model_data import ModelData
 from ..parts.parameters import Param
 from ..parts.prediction import EffectStage, Prediction
@@ -137,28 +144,35 @@ class Covariates:
         return self.data.depth_unit_m
 
 
-class UserEffect(Effect):
-    """An effect made from a function of the covariates (see the module docstring)."""
+class TermEffect(Effect):
+    """An effect written as a per-pixel term of the covariates (see the module docstring): a subclass sets `name`,
+    `stage` (one of STAGES, by name), `params`, `signature` and a docstring, and writes `term(self, c, **params)`."""
 
-    def __init__(self, fn: Callable[..., Any], *, stage: str, params: Sequence[Param] = (), signature: str,
-                 name: str | None = None, source: str = ""):
-        if stage not in STAGES:
-            raise EffectFileError(f"effect {name or fn.__name__}: stage {stage!r} is not one of {', '.join(STAGES)}")
-        self.fn = fn
-        self.name = name or fn.__name__  # type: ignore[misc]
-        self.stage_name = stage
-        self.stage = STAGES[stage]  # type: ignore[misc]
-        self.params = tuple(params)  # type: ignore[misc]
-        self.signature = signature  # type: ignore[misc]
-        doc = (fn.__doc__ or "").strip().splitlines()
-        self.explanation = doc[0].rstrip(".") if doc else f"{self.name} (written by the user)"  # type: ignore[misc]
-        self.__doc__ = fn.__doc__ or self.explanation
-        self.source = source
+    #: the stage by name, as the subclass gave it (`stage` becomes the prediction's stage it joins at)
+    stage_name: ClassVar[str] = ""
+    #: the file it was loaded from, for messages
+    source: str = ""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        given = cls.__dict__.get("stage")
+        if isinstance(given, str):
+            cls.stage_name = given
+            cls.stage = STAGES.get(given)  # type: ignore[assignment]
+        if "explanation" not in cls.__dict__:
+            doc = (cls.__doc__ or "").strip().splitlines()
+            cls.explanation = doc[0].rstrip(".") if doc else f"{cls.name} (written by the user)"
+
+    def __init__(self) -> None:
         _check_definition(self)
+
+    def term(self, c: Covariates, **params: float) -> np.ndarray:
+        """The per-pixel value its stage takes (the module docstring), from the covariates and the parameters."""
+        raise NotImplementedError
 
     def evaluate(self, d: ModelData, p: Any) -> np.ndarray:
         """The function's per-pixel output for parameter values `p` (its own, `own`, or a model's by qualified name)."""
-        out = np.asarray(self.fn(covariates(d), **self.own(p)._asdict()), dtype=float)
+        out = np.asarray(self.term(covariates(d), **self.own(p)._asdict()), dtype=float)
         return np.broadcast_to(out, d.z_m.shape)
 
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
@@ -223,17 +237,6 @@ class UserEffect(Effect):
         return (f_up - f_down) / (up - down)
 
 
-def effect(*, stage: str, params: Sequence[Param] = (), signature: str, name: str | None = None) -> Callable[[Callable[..., Any]], UserEffect]:
-    """Make an effect of a function of the covariates (see the module docstring)."""
-
-    def wrap(fn: Callable[..., Any]) -> UserEffect:
-        e = UserEffect(fn, stage=stage, params=params, signature=signature, name=name)
-        code = getattr(fn, "__code__", None)
-        return add(e, getattr(fn, "__module__", None) or "", f"{code.co_filename}:{code.co_firstlineno}" if code else "")
-
-    return wrap
-
-
 _COVARIATES: dict[int, tuple[ModelData, Covariates]] = {}
 
 
@@ -248,11 +251,18 @@ def covariates(d: ModelData) -> Covariates:
     return hit[1]
 
 
-def _where(e: UserEffect) -> str:
+def _where(e: TermEffect) -> str:
     return f" (in {e.source})" if e.source else ""
 
 
-def _check_definition(e: UserEffect) -> None:
+def _check_definition(e: TermEffect) -> None:
+    if type(e).name == Effect.name or not isinstance(e.name, str):
+        raise EffectFileError(f"effect {type(e).__name__}{_where(e)}: give it a name (name = \"...\", a Python identifier)")
+    if e.stage_name not in STAGES:
+        raise EffectFileError(f"effect {e.name}{_where(e)}: stage {e.stage_name or type(e).stage!r} is not one of "
+                              f"{', '.join(STAGES)}")
+    if type(e).term is TermEffect.term:
+        raise EffectFileError(f"effect {e.name}{_where(e)}: write its term(self, c, ...) (docs/effects.md)")
     if not e.name.isidentifier() or keyword.iskeyword(e.name) or e.name.startswith("empirical"):
         raise EffectFileError(f"effect name {e.name!r}{_where(e)} must be a Python identifier (and not 'empirical...')")
     seen = set()
@@ -270,12 +280,12 @@ def _check_definition(e: UserEffect) -> None:
 
 
 def load_effects(path: str | Path) -> list[Effect]:
-    """The effects a Python file defines: those it registers (functions with @effect, classes with @register), in
-    order, then any other module-level `Effect` objects. Running the file again replaces what it registered."""
+    """The effects a Python file defines: the classes it registers (@register), in order, then any other
+    module-level `Effect` objects. Running the file again replaces what it registered."""
     path = Path(path)
     if not path.is_file():
-        raise EffectFileError(f"{path} does not exist; pass a Python file that defines effects with @effect "
-                              "(see docs/effects.md)")
+        raise EffectFileError(f"{path} does not exist; pass a Python file that defines effects, classes registered "
+                              "with @register (see docs/effects.md)")
     module_name = "rig_user_effects_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(module_name, path)
     if spec is None or spec.loader is None:
@@ -299,9 +309,9 @@ def load_effects(path: str | Path) -> list[Effect]:
     theirs = [*found, *EFFECTS.values()]  # a built-in effect the file imports is not the file's
     found += [v for v in vars(module).values() if isinstance(v, Effect) and not any(v is e for e in theirs)]
     if not found:
-        raise EffectFileError(f"{path} defines no effect; decorate a function with @effect(stage=..., signature=...) "
+        raise EffectFileError(f"{path} defines no effect; write a class of TermEffect registered with @register "
                               "(see docs/effects.md)")
     for e in found:
-        if isinstance(e, UserEffect) and not e.source:
+        if isinstance(e, TermEffect) and not e.source:
             e.source = str(path)
     return found

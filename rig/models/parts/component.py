@@ -87,8 +87,18 @@ class Effect(Component):
     needs: ClassVar[tuple[str, ...]] = ()
     signature: ClassVar[str] = ""
     explanation: ClassVar[str] = ""
-    #: where it was registered ("rig/models/effects/builtin.py:55"), for messages; set by `register`
+    #: where it was registered ("rig/models/effects/builtin/noise_floor.py:20"), for messages; set by `register`
     defined_at: str = ""
+    #: the effect of the simulated camera (fakes/effects.py) that produces what this one predicts, by name: the
+    #: blind test hides it and expects the diagnosis to name this effect; None: nothing there simulates it
+    twin: ClassVar[str | None] = None
+    #: its place in the catalogue (`EFFECTS`): the diagnosis tries effects in this order and `rig simulate --seed N`
+    #: draws among them in it; a new built-in effect takes the next free number
+    position: ClassVar[int] = 1000
+
+    def scenario(self, rng: np.random.Generator) -> dict[str, float] | None:
+        """The parameters of its twin the blind test hides, drawn from `rng` (realistic ranges); None: no scenario."""
+        return None
 
     def applicable(self, d: ModelData) -> str | None:
         """None if the effect can be fitted to these data, else why not (one line)."""
@@ -189,6 +199,13 @@ def add(effect: Effect, module: str, defined_at: str = "") -> Effect:
     return effect
 
 
+def order_builtins() -> None:
+    """Put the built-in effects in the order of their `position` (then of registration)."""
+    ordered = sorted(EFFECTS.values(), key=lambda e: e.position)
+    EFFECTS.clear()
+    EFFECTS.update((e.name, e) for e in ordered)
+
+
 def registered_by(module: str) -> list[Effect]:
     """The effects `module` registered, in order (rig's own: the built-in ones)."""
     return list((EFFECTS if _is_builtin(module) else _ELSEWHERE.get(module, {})).values())
@@ -201,9 +218,9 @@ def forget(module: str) -> None:
 
 
 def describe(e: Effect) -> str:
-    """The effect's class (or function) and where it was defined, for messages: "NoiseFloor (rig/models/effects/builtin.py:55)"."""
-    fn = getattr(e, "fn", None)
-    what = getattr(fn, "__qualname__", None) or type(e).__qualname__
+    """The effect's class and where it was registered, for messages:
+    "NoiseFloor (rig/models/effects/builtin/noise_floor.py:20)"."""
+    what = type(e).__qualname__
     return f"{what} ({e.defined_at})" if e.defined_at else what
 
 
