@@ -21,16 +21,24 @@ Effects (see `fakes.effects`) join at named points: `illumination` (scale signal
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from .effects import Effect
 
 #: the native sensor the electron counts below refer to (a RealSense D435 depth stream)
 NATIVE_WIDTH, NATIVE_HEIGHT = 848, 480
 NATIVE_FX_PX = 425.0
+
+
+class StopHooks(Protocol):
+    """What the stop's field needs of an effect (fakes/effects.py's `Effect` has these and more): its static part
+    on the projected light, the image noise and the disparity noise of the stop."""
+
+    def illumination(self, f: StopField) -> None: ...
+
+    def image_noise(self, f: StopField) -> None: ...
+
+    def disparity_noise(self, f: StopField) -> None: ...
 
 
 @dataclass
@@ -121,7 +129,7 @@ def build_field(
     projector_on: bool,
     exposure_us: float,
     gain: float,
-    effects: list["Effect"],
+    effects: list[StopHooks],
     room_lit: bool = False,
     roughness_m: np.ndarray | float = 0.0,
 ) -> StopField:

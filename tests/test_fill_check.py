@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from rig.diagnosis.consistency import fill_check
-from rig.diagnosis.residuals import StopSums
+from rig.diagnosis.stop_sums import StopSums
 from rig.models import ModelData, parse_model
 
 

@@ -175,7 +175,7 @@ def test_a_bins_sums_are_the_pooled_quantities_by_their_definitions():
 def test_stop_sums_are_numpys_sums_of_each_quantity(per_row):
     """`StopSums.add` (one compiled pass) against numpy's sums of each quantity by its definition, stop by stop,
     with the prediction's common wander, gain and fill given once for all rows or one a row."""
-    from rig.diagnosis.residuals import StopSums
+    from rig.diagnosis.stop_sums import StopSums
     from rig.models import Prediction
 
     rng = np.random.default_rng(21)

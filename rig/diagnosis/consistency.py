@@ -30,7 +30,6 @@ worst bin.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,9 +37,7 @@ from ..models import ModelData
 from ..models.data.independence import rho_and_se
 from ..models.parts.result import chi2_sf
 from .bins import BinComparison
-
-if TYPE_CHECKING:
-    from .residuals import StopSums
+from .stop_sums import StopSums
 
 #: family-wise false-alarm rate of the verdict "within noise"
 ALPHA = 1e-3

@@ -11,10 +11,14 @@ files must be where the workers see them (a shared file system): docs/performanc
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
+import socket
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
+from urllib.parse import urlsplit
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -48,7 +52,8 @@ def run_each(fn: Callable[[T], R], items: Iterable[T], *, jobs: int | None = Non
 
 def _on_cluster(fn: Callable[[Any], R], items: list[Any], address: str) -> Iterator[R]:
     try:
-        from distributed import Client, as_completed as finished
+        from distributed import Client
+        from distributed import as_completed as finished
     except ImportError:
         raise ValueError(f"--scheduler {address}: running on a Dask cluster needs the distributed package; install it "
                          "with pip install 'rig[cluster]', or drop --scheduler (and unset RIG_SCHEDULER) to run here") from None
@@ -89,8 +94,6 @@ def _undo_trim_threshold() -> None:
         return
     _allocator_set = True
     try:
-        import ctypes
-        import ctypes.util
 
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
         libc.mallopt(-1, 256 << 20)  # M_TRIM_THRESHOLD
@@ -101,8 +104,6 @@ def _undo_trim_threshold() -> None:
 
 def _answers(address: str) -> None:
     """An OSError at once when nothing listens at a tcp:// address (Dask's own client retries for its whole timeout)."""
-    import socket
-    from urllib.parse import urlsplit
 
     where = urlsplit(address)
     if where.scheme == "tcp" and where.hostname and where.port:

@@ -13,8 +13,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-from .executors import run_each
+from protocols.recording import Recording, RecordingError
+
+from ..analysis import fit_recording, in_window, recording_notes
+from ..diagnosis import headline
+from ..diagnosis.bins import pooled_sigma, sigma_by_range
+from ..models import Catalogue, load_samples
 from ..recordings.recording_fits import PAPER, FitJob, RecordingResult, model_for, summarise
+from ..reports.result_json import document, fit_json
+from .executors import run_each
 
 
 @dataclass
@@ -40,11 +47,7 @@ def recordings_in(folder: Path) -> list[Path]:
 
 def fit_one(path: Path) -> ManyRow:
     """The paper's fit of one recording and its headline error (in a worker: plain data back)."""
-    from protocols.recording import RecordingError
 
-    from ..analysis import fit_recording
-    from ..diagnosis import headline
-    from ..reports.result_json import document, fit_json
 
     try:
         r = fit_recording(path)
@@ -63,7 +66,6 @@ def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None =
 
 def fit_for_comparison(job: FitJob) -> RecordingResult:
     """Fit `job.model` to the recording at `job.path` (in a worker: plain data back, errors as a one-line `error`)."""
-    from protocols.recording import RecordingError
 
     try:
         return _fit(job)
@@ -72,12 +74,7 @@ def fit_for_comparison(job: FitJob) -> RecordingResult:
 
 
 def _fit(job: FitJob) -> RecordingResult:
-    from protocols.recording import Recording
 
-    from ..analysis import fit_recording, in_window, recording_notes
-    from ..diagnosis import headline
-    from ..diagnosis.bins import pooled_sigma, sigma_by_range
-    from ..models import Catalogue, load_samples
 
     notes: list[str] = []
     if job.model in (None, PAPER):

@@ -19,8 +19,10 @@ from typing import Callable
 
 from .composition import Model
 from .data.model_data import ModelData
+from .effects.user_effects import EffectFileError
 from .fitting.optimise import fit_data
 from .parts.result import ModelFit
+
 
 def fit_models(models: list[Model], d: ModelData, start: dict[str, float] | None = None, *, jobs: int = 1,
                hold: frozenset[str] = frozenset(), done: Callable[[int], None] | None = None,
@@ -85,7 +87,6 @@ def _map_in_worker(i: int) -> tuple[int, object]:
 
 def _fit(m: Model, d: ModelData, start: dict[str, float] | None, hold: frozenset[str],
          exact_loglik: bool) -> ModelFit | Exception:
-    from .effects.user_effects import EffectFileError
 
     try:
         return m.fit(d, start=start, errors=False, hold=hold, exact_loglik=exact_loglik)
@@ -104,7 +105,6 @@ def _quiet_signals() -> None:
 
 def _raised(r: object) -> ModelFit | ValueError:
     """The fit, or the ValueError that it could not be fitted; an effects-file error is raised."""
-    from .effects.user_effects import EffectFileError
 
     if isinstance(r, EffectFileError):
         raise r

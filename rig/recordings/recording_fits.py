@@ -14,6 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..models import parse_model
+from ..models.export import noise_model_document
+from ..noise_model import NoiseModel, NoiseModelError
+
 #: the model fitted when none is given: the paper's k Z^lambda, both free
 PAPER = "power_law"
 
@@ -63,7 +67,6 @@ class RecordingResult:
 
 def model_for(spec: str, projector_on: bool, catalogue=None):
     """(the model `spec` names, with its base matched to the projector, a note if it was changed)."""
-    from ..models import parse_model
 
     model = parse_model(spec, catalogue)
     base = model.base.name
@@ -92,8 +95,6 @@ def summarise(path: str, fit, d, h, measured, rec, notes: list[str], projector_o
 def axis_curve(fit, d, rec, z_measured) -> tuple[list[float], list[float], str]:
     """The model's sigma on the optical axis over the measured ranges (`rig.noise_model`, as exported); the base
     k Z^lambda alone where a term needs a measured input (brightness, ambient light, drift)."""
-    from ..noise_model import NoiseModel, NoiseModelError
-    from ..models.export import noise_model_document
 
     z = np.linspace(min(z_measured) * 0.95, max(z_measured) * 1.03, 120)
     try:

@@ -6,11 +6,16 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
+from protocols.recording import Recording, utc_now
+
+from .. import package_version
+from ..diagnosis.bins import pooled_sigma, sigma_by_range
 from ..recordings.comparison import Difference, Scatter, pair_verdict, repeatability_verdict
-from ..recordings.recording_fits import RecordingResult
+from ..recordings.recording_fits import RecordingResult, summarise
+from .comparison_plots import plot_overlay
 from .comparison_text import difference_rows, results_rows, scatter_rows
 from .html_page import figures, page, run_table, table
-from .run_info import RunInfo
+from .run_info import RunInfo, run_info
 
 
 def _write(out_dir: str | Path, name: str, text: str) -> Path:
@@ -34,13 +39,7 @@ def write_fit_page(title: str, summary: str, report: str, plots: list[Path], out
 def fit_report(path: str, fit, d, h, text: str, out_dir: str | Path, notes: list[str]) -> Path:
     """`rig fit --report DIR`: fit.html with the run's metadata and the plot of sigma against range (measured per stop,
     the model's curve on the optical axis) beside it."""
-    from protocols.recording import Recording, utc_now
 
-    from .. import package_version
-    from ..diagnosis.bins import pooled_sigma, sigma_by_range
-    from ..recordings.recording_fits import summarise
-    from .comparison_plots import plot_overlay
-    from .run_info import run_info
 
     with Recording(path) as rec:
         labels = rec.stop_labels()

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import package_version
 from ..diagnosis import Diagnosis, Headline
 from ..models import ModelFit
 from ..models.data.determinacy import LambdaStatus, lambda_status
@@ -82,7 +83,6 @@ def fit_json(fit: ModelFit, head: Headline | None = None, status: LambdaStatus |
 def document(command: str, file: str | Path, notes: list[str], fits: list[dict], *, best: str | None = None,
              window_m: tuple[float | None, float | None] = (None, None), diagnosis: dict | None = None) -> dict:
     """The whole output of one command (docs/json.md)."""
-    from .. import package_version
 
     return {"schema": SCHEMA, "command": command, "rig_version": package_version(), "file": str(file),
             "notes": list(notes), "window_m": {"z_min": window_m[0], "z_max": window_m[1]}, "fits": fits,

@@ -18,6 +18,8 @@ from textual.binding import Binding
 from textual.css.query import NoMatches
 from textual.widgets import Checkbox, Footer, Input, Select, TabbedContent, TabPane, Tabs
 
+from drivers.camera import CameraSettings
+
 from .devices_pane import DevicesPane
 from .experiment_pane import ExperimentPane
 from .form import DEFAULT_CAMERA, DEFAULT_STAGE, ExperimentSettings
@@ -217,7 +219,6 @@ class RigApp(App):
         if s is None:
             self.devices.status.show("the experiment's settings are refused; see the Experiment screen", "error")
             return
-        from drivers.camera import CameraSettings
 
         self.devices.test_capture(CameraSettings(projector_on=s.value("projector_on"), exposure_us=s.value("exposure_us"),
                                                  gain=s.value("gain")))

@@ -26,13 +26,14 @@ from typing import Any, Iterator
 import numpy as np
 from numba import njit
 
-from protocols.recording import CameraCalibration
+from protocols.recording import CameraCalibration, Recording
 
 from .covariates import StopSource, covariate_rows, rows_by_stop
-from .loading import BRIGHTNESS_WINDOW_PX, LAG1_FACTS, read_rows
+from .loading import LAG1_FACTS, read_rows
 from .order_statistics import median
 from .rounding import grid_offset
 from .shape_statistics import ShapeStatistics
+
 #: range windows of the kurtosis term and of the diagnosis (m)
 RANGE_BIN_M = 0.25
 #: rows of the chunks work over every pixel goes in (whole stops; about a full-resolution stop)
@@ -134,7 +135,6 @@ class ModelData(ShapeStatistics):
     @classmethod
     def from_recording(cls, path: Any) -> "ModelData":
         """Every pixel with a positive sample variance, from every complete stop of the recording at `path`."""
-        from protocols.recording import Recording
 
         with Recording(path) as rec:
             return load_samples(rec, positive_variance=True)

@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit
 
 from ..data.model_data import ModelData, stops_of
+from .likelihood import gamma_constant, gamma_constant_by_stop, likelihood_weights, prepare
 
 #: nodes the grouping aims at, in all (7 per tile)
 TARGET_NODES = 60_000
@@ -83,7 +84,6 @@ def group(d: ModelData, tile_px: int, *, by_offset: bool = False) -> GroupedData
     pixels of small spread kept apart by their offset between depth levels, which is then a fourth axis of the
     quadrature. A group of no more pixels than nodes keeps its pixels as they are. Sums over the pixels go in
     compiled passes (`_plane_sums`, `_residuals`, `_moments`)."""
-    from .likelihood import gamma_constant, likelihood_weights, prepare
 
     prepare(d)
     a, b, kw, _ = likelihood_weights(d)
@@ -148,7 +148,6 @@ def whole_stops(d: ModelData, mask: np.ndarray, *, statistics: bool = True) -> M
     where a window holds two stops' pixels); without, only what a fit on the nodes reads of the pixels (the
     data-only constant and the fill by stop, from the whole data's per-stop sums), copying less. Held-out
     scores use it, fitting with some stops left out without measuring and grouping the rest again."""
-    from .likelihood import gamma_constant_by_stop
 
     out = d._taken(mask, derived=statistics)
     out.__dict__["kurtosis_by_range"] = d.kurtosis_by_range
@@ -169,7 +168,6 @@ def nodes_of_stops(g: GroupedData, d: ModelData) -> GroupedData:
     """The nodes of `g` that stand for the stops of `d` (whole stops of the data `g` was grouped from, with their
     per-pixel statistics): what grouping `d` itself would give with g's tile size, since no tile spans two stops
     and every pixel's weights come from its own stop; the data-only constant and the fill table are d's."""
-    from .likelihood import gamma_constant
 
     stops = stops_of(d)
     keep = (np.bincount(stops, minlength=int(g.stop.max()) + 1) > 0)[g.stop]

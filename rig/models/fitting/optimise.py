@@ -12,15 +12,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .closed_form import power_law_mle
+from ..data.independence import error_inflation
 from ..data.model_data import ModelData
 from ..parts.error_notes import error_notes
-from ..data.independence import error_inflation
-from .likelihood import model_loglik_gradient
 from ..parts.parameters import Param
 from ..parts.result import ModelFit
-from .stopping import NewtonStop
 from ..parts.tangents import analytic
+from .closed_form import power_law_mle
+from .grouping import group, rounding_matters, tile_size
+from .likelihood import model_loglik_gradient
+from .stopping import NewtonStop
 
 if TYPE_CHECKING:
     from ..parts.component import ComposedModel
@@ -275,7 +276,6 @@ def fit_data(model: ComposedModel, d: ModelData) -> ModelData:
     """What `model` is fitted on: the grouped nodes of `d` (made once, kept with `d`; apart by grid offset where the
     model rounds to the depth unit) when the data are large enough and every effect of the model is smooth within
     a tile (`Effect.groupable`); else `d` itself."""
-    from .grouping import group, rounding_matters, tile_size
 
     if isinstance(getattr(d, "weights", None), tuple) or not all(getattr(e, "groupable", True) for e in model.effects):
         return d

@@ -21,12 +21,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .component import Component, Effect
+from .component import BaseModel, Component, Effect
 
 
 @dataclass
@@ -100,13 +99,11 @@ def plus(*terms: np.ndarray | None) -> np.ndarray | None:
 
 def has_tangent(e: Effect) -> bool:
     """Whether the effect carries its own derivatives (`apply_tangent`): every built-in and empirical one does."""
-    from .component import Effect
 
     return type(e).apply_tangent is not Effect.apply_tangent
 
 
 def analytic(model: Any) -> bool:
     """Whether `model`'s likelihood has an analytic gradient: its base and every effect carry derivatives."""
-    from .component import BaseModel
 
     return type(model.base).shot_tangent is not BaseModel.shot_tangent and all(has_tangent(e) for e in model.effects)
