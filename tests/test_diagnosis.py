@@ -31,7 +31,7 @@ SIZE = dict(width=53)
 #: kept out of brightness (issue 31): read_noise + slant_range now end within noise on this seed (0.34 %, noise
 #: 0.37 %); the 10-seed table has not been measured again since
 SHORTFALLS: dict[str, str] = {}
-#: noisy_confidence takes 2.5-4 min a trial: the docs' table (rig validate-diagnosis) runs it, the suite does not
+#: noisy_confidence, the slowest trial, is left to the docs' table (rig validate-diagnosis); the suite does not run it
 SUITE = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORTFALLS[s])) if s in SHORTFALLS else s
          for s in ALL_SCENARIOS if s not in ("noisy_confidence", *NOT_INDEPENDENT, *SATURATED_IR)]
 # temporal_filter (frames not independent) runs cheaper, without the path: tests/test_independence.py; and
