@@ -51,7 +51,7 @@ class ResultsPane(Vertical):
         with Horizontal(classes="field"):
             yield Label("Effects file", classes="label")
             yield Input("", id="effects-path", compact=True,
-                        placeholder="optional: your effects (.py of TermEffect classes, docs/effects.md)")
+                        placeholder="optional: your effects (a .py file, docs/effects.md)")
         yield StatusLine("enter (or ctrl+o) opens the recording", id="results-status")
         with Horizontal(classes="columns"):
             with Vertical(classes="left"):
