@@ -26,6 +26,7 @@ from .run_errors import PlanRefused, RunError  # noqa: F401  (re-exported: proto
 from .plan import Capture, Configure, Home, Move, Plan, Settle
 from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, is_storage_failure, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
+from . import interruption
 from .plan_check import RigLimits, disk_need_bytes, plan_problems, stop_recipes
 from .recording import FrameSeries, RecordingError
 from .recording_errors import AssemblyError
@@ -149,6 +150,7 @@ class Runner:
                 requested: CameraSettings | None = None
                 needs_home = homed = False
                 for step in plan.steps():
+                    interruption.check()
                     if self.control.abort.is_set():
                         raise _Aborted()
                     if isinstance(step, Home):
@@ -329,6 +331,7 @@ class Runner:
         size = shape[0] * shape[1]
         for j, frame in enumerate(self._frames_checked(step.n_frames, requested, ir=step.ir, continuity=continuity)):
             self.control.wait_if_paused()
+            interruption.check()
             if self.control.abort.is_set():
                 raise _Aborted()
             depth = frame.depth

@@ -146,6 +146,43 @@ def test_bad_values_on_the_command_line_are_one_line(tmp_path, capsys, args, mes
     assert len(err.splitlines()) == 1 and message in err, err
 
 
+def test_an_interrupt_python_swallows_still_ends_the_run(tmp_path, monkeypatch, capsys):
+    """SIGTERM's handler raises KeyboardInterrupt wherever Python is; inside a weakref callback (or a finaliser,
+    a __del__) Python prints "Exception ignored" and drops it. The suite once saw a run go on to its end that way
+    (exit 0 for 130). Here the handler runs at that exact instant, as the callback of an object freed after the
+    second stop: the run still ends at its next frame, with the stops done saved and 130 (protocols.interruption)."""
+    import weakref
+
+    import protocols.runner
+    import rig.cli
+
+    captured = protocols.runner.Runner._capture
+    calls = []
+
+    class Freed:
+        pass
+
+    def capture_then_free(self, *args, **kwargs):
+        captured(self, *args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            gone = Freed()
+            weakref.finalize(gone, rig.cli._raise_interrupt, 15, None)
+            del gone  # the handler runs in the finaliser: its KeyboardInterrupt is printed and lost
+
+    monkeypatch.setattr(protocols.runner.Runner, "_capture", capture_then_free)
+    swallowed = []  # what Python could not raise (it prints "Exception ignored in ..." for each)
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: swallowed.append(u.exc_type))
+    out = tmp_path / "r.h5"
+    code = rig.cli.main(["run", "--protocol", "perpendicular", "--camera", "fake:width=16", "--stage", "fake:",
+                         "--frames", "5", "-o", str(out), "-q"])
+    err = capsys.readouterr().err
+    assert swallowed == [KeyboardInterrupt] and code == 130, (swallowed, err)  # lost, and the run stopped all the same
+    assert "run interrupted; 2 of 11 stops are saved" in err and "--resume" in err, err
+    with Recording(out) as rec:
+        assert len(rec.stop_labels()) == 2
+
+
 @pytest.mark.slow
 def test_sigterm_ends_a_run_like_ctrl_c(tmp_path):
     out = tmp_path / "r.h5"

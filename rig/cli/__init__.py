@@ -21,6 +21,7 @@ from ..runtime.process_gc import collect_less_often, freeze_before_exit
 one_blas_thread()  # before anything imports numpy (rig/runtime/blas_threads.py says why)
 
 from drivers.errors import DeviceError, FolderImportError
+from protocols import interruption
 
 from . import acquire, analyse, export, recordings, tools
 from .options import add_verbosity
@@ -117,19 +118,26 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         raise
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in (previous or {}).items():
+            signal.signal(signum, handler)
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:
+    interruption.request()  # kept if Python swallows the exception (raised inside a weakref callback or __del__)
     raise KeyboardInterrupt
 
 
 def _terminate_like_interrupt():
-    """SIGTERM (a service manager, `kill`) ends a command as Ctrl-C does: completed stops saved, a resume hint."""
+    """SIGTERM (a service manager, `kill`) ends a command as Ctrl-C does: completed stops saved, a resume hint;
+    Ctrl-C's own handler, if it is Python's, is replaced by the same one, so neither is lost
+    (`protocols.interruption`). Returns the handlers to put back."""
+    interruption.forget()
     if threading.current_thread() is not threading.main_thread():
         return None
-    return signal.signal(signal.SIGTERM, _raise_interrupt)
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_interrupt)}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_interrupt)
+    return previous
 
 
 if __name__ == "__main__":
