@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     from protocols.recording_errors import RecordingError
     from protocols.run_errors import RunError
 
-    from ..models.parts.effect_errors import EffectFileError
+    from ..runtime.effect_errors import EffectFileError
 
     from protocols.disk_space import is_disk_full, is_storage_failure
 

@@ -27,7 +27,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
-from .effect_errors import EffectFileError
+from ...runtime.effect_errors import EffectFileError
 from .parameters import Param
 from .prediction import EffectStage, Prediction
 
