@@ -15,7 +15,7 @@ import re
 from typing import Callable
 
 from textual.message import Message
-from textual.validation import ValidationResult, Validator
+from textual.validation import Integer, Number, ValidationResult, Validator
 from textual.widgets import Input
 
 
@@ -56,8 +56,6 @@ class CheckedField(Input):
         # a number field is a text field with NUMERIC_SHAPES' pattern, and Textual's validator when no other is given
         self._shape = NUMERIC_SHAPES.get(type)
         if self._shape is not None and not validators:
-            from textual.validation import Integer, Number
-
             validators = [Integer() if type == "integer" else Number()]
         super().__init__(*args, type="text" if self._shape else type, validators=validators, **kw)
         self.refused: list[str] = []  # what was refused (typed characters, pasted text) since the field was emptied
