@@ -25,6 +25,9 @@ from ..models.fitting.progress import ProgressCounter
 SIGNIFICANT_DBIC = -10.0
 SIGNIFICANT_P = 1e-3
 EQUIVALENT_FRACTION = 0.02
+#: an effect is added only if it removes at least this share of the misfit (`Headline.misfit`): with
+#: millions of samples, an effect can be significant and still leave the error where it was
+MATERIAL_FRACTION = 0.3
 
 
 @dataclass

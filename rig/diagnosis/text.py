@@ -54,10 +54,15 @@ def render_text(diag: Diagnosis) -> str:
     u = diag.unexplained
     if u is not None:
         for st in u.steps:
-            tried = ", ".join(f"{t.covariate} {t.dbic:.0f}" if t.fit is not None else f"{t.covariate} (n/a)" for t in st.trials)
-            lines.append(f"  {'+ empirical(' + st.covariate + ')':<36} {st.fit.model.name:<48} headline "
-                         f"{st.headline.error_pct:6.2f} %  {st.headline.state}"
-                         f"   (for {st.family}; dBIC of the shapes tried: {tried})")
+            if st.candidate is not None:
+                why = f"   (the catalogue tried again on top of the shapes: dBIC {st.candidate.dbic:.1f})"
+            else:
+                tried = ", ".join(f"{t.covariate} {t.dbic:.0f}" if t.fit is not None else f"{t.covariate} (n/a)" for t in st.trials)
+                why = f"   (for {st.family}; dBIC of the shapes tried: {tried})"
+            lines.append(f"  {'+ ' + st.added:<36} {st.fit.model.name:<48} headline "
+                         f"{st.headline.error_pct:6.2f} %  {st.headline.state}{why}")
+    if diag.stopped:
+        lines.append(f"  The path stopped: {diag.stopped}.")
     lines += ["", diag.summary()]
     if len(diag.steps) > 1:
         lines += ["", diag.catalogue_fit.report()]

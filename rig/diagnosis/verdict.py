@@ -27,16 +27,13 @@ from dataclasses import dataclass, field
 from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors, with_exact_loglik
 from ..models.data.independence import Independence, independence
 from ..models.fitting.progress import ProgressCounter, ProgressFn
-from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
+from .candidates import MATERIAL_FRACTION, SIGNIFICANT_DBIC, SIGNIFICANT_P, Candidate, applicable_candidates, choose, rank_candidates
 from .residuals import Residuals, residuals
 from .scores import Headline, headline
 from .unexplained import Unexplained, explain_residual
 
 #: at most this many catalogue effects are added, one at a time
 MAX_STEPS = 4
-#: an effect is added only if it removes at least this share of the misfit (`Headline.misfit`): with
-#: millions of samples, an effect can be significant and still leave the error where it was
-MATERIAL_FRACTION = 0.3
 
 
 @dataclass
@@ -63,6 +60,14 @@ class Diagnosis:
     power_law_fit: ModelFit
     residuals: Residuals  # of the starting model
     unexplained: Unexplained | None = None
+    catalogue_stopped: str = ""  # why the catalogue's path stopped, in words
+
+    @property
+    def stopped(self) -> str:
+        """Why the whole path stopped, in words."""
+        if self.unexplained is not None and self.unexplained.stopped:
+            return self.unexplained.stopped
+        return self.catalogue_stopped
 
     # -- the start, the first effect and the end --------------------------------------------
     @property
@@ -172,7 +177,8 @@ class Diagnosis:
         s = (f" Not explained by the catalogue: what remains ({first.family}) follows {first.covariate}{also}. "
              f"An empirical shape over {first.covariate} (rig fit --model '{u.steps[0].fit.model.name}')")
         for st in u.steps[1:]:
-            s += f", then over {st.covariate} (for {st.family})"
+            s += (f", then over {st.covariate} (for {st.family})" if st.is_empirical else
+                  f", then {st.added} (the catalogue tried again on top of the shapes)")
         h = u.final_headline
         s += f" brings the headline error to {h.error_pct:.2f} %: " + (
             "every statistic within noise." if h.within_noise else f"still beyond noise ({h.verdict()}).")
@@ -235,7 +241,11 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
     pl = fit_power_law(d)  # the paper's fit, for reference: closed form
     steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter, jobs=jobs,
                                           not_fitted=steps[0].not_fitted)  # shown even when nothing is missing
-    while not steps[-1].headline.within_noise and len(steps) <= max_steps:
+    stopped = "every statistic is within noise"
+    while not steps[-1].headline.within_noise:
+        if len(steps) > max_steps:
+            stopped = f"{max_steps} catalogue effects are in, the most the path adds before empirical terms"
+            break
         current = steps[-1]
         if len(steps) > 1:
             counter.expect(1 + len(applicable_candidates(current.fit.model, d, catalogue)))
@@ -243,18 +253,23 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
                                                  not_fitted=current.not_fitted)
         best, equivalent = choose(current.candidates)
         if best is None:
+            stopped = f"no catalogue effect lowers BIC by more than {-SIGNIFICANT_DBIC:g} with p < {SIGNIFICANT_P:g}"
             break
         after = headline(best.fit, d)
         if after.misfit > (1 - MATERIAL_FRACTION) * current.headline.misfit:
-            break  # significant, but it leaves what is wrong where it was: not the missing effect
+            # significant, but it leaves what is wrong where it was: not the missing effect
+            stopped = (f"{best.effect.name}, the most likely effect left, removes less than {MATERIAL_FRACTION:.0%} of "
+                       "the misfit")
+            break
         best.fit = with_exact_loglik(with_errors(best.fit, d), d)  # a candidate's was its grouped nodes' (candidates)
         steps.append(Step(best.fit, after, best, equivalent))
         counter.more_may_come = not after.within_noise and (len(steps) <= max_steps or explain)
     unexplained = None
     if explain and not steps[-1].headline.within_noise:
-        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter, jobs=jobs)
+        unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter, jobs=jobs,
+                                       catalogue=catalogue)
     counter.more_may_come = False
     counter.step("residuals")
-    result = Diagnosis(source, d, steps, pl, steps[0].headline.residuals or residuals(fit, d), unexplained)
+    result = Diagnosis(source, d, steps, pl, steps[0].headline.residuals or residuals(fit, d), unexplained, stopped)
     counter.finish()
     return result

@@ -33,6 +33,7 @@ from .data.model_data import ModelData, load_samples
 from .effects.empirical import empirical
 from .effects.user_effects import Covariates, TermEffect, load_effects
 from .fitting.closed_form import PowerLawEstimate, power_law_mle
+from .fitting.information import undetermined
 from .fitting.optimise import fit_model, with_errors, with_exact_loglik
 from .paper_fit import fit_power_law
 from .parse import parse_model
@@ -44,7 +45,7 @@ from .parts.result import ModelFit, likelihood_ratio
 __all__ = [
     "BASES", "Base", "active", "fixed_lambda", "passive", "power_law", "BaseModel", "Component", "Param", "Model",
     "parse_model", "PowerLawEstimate", "power_law_mle", "ModelData", "load_samples", "EFFECTS", "Effect", "register",
-    "fit_model", "with_errors", "with_exact_loglik", "fit_power_law", "EffectStage", "Prediction", "ModelFit",
+    "fit_model", "undetermined", "with_errors", "with_exact_loglik", "fit_power_law", "EffectStage", "Prediction", "ModelFit",
     "likelihood_ratio",
     "Catalogue", "empirical", "Covariates", "EffectFileError", "TermEffect", "load_effects",
 ]

@@ -38,7 +38,7 @@ def path_rows(diag: Diagnosis) -> str:
         change = "start" if st.added is None else f"+ {st.added.effect.name} (ΔBIC {st.added.dbic:.1f})"
         rows.append((change, st.name, st.headline))
     if diag.unexplained is not None:
-        rows += [(f"+ empirical({st.covariate}) for {st.family}", st.fit.model.name, st.headline)
-                 for st in diag.unexplained.steps]
+        rows += [(f"+ {st.added}" + (f" for {st.family}" if st.is_empirical else " (the catalogue tried again)"),
+                  st.fit.model.name, st.headline) for st in diag.unexplained.steps]
     return "".join(f"<tr><td>{html.escape(c)}</td><td>{html.escape(m)}</td><td>{h.error_pct:.2f} % (noise {h.noise_pct:.2f} %)</td>"
                    f"<td>{html.escape(h.verdict())}</td></tr>" for c, m, h in rows)

@@ -102,9 +102,10 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     if diag.unexplained is not None:
         prev, prev_error = diag.unexplained.start_fit, diag.unexplained.start_headline.error_pct
         for st in diag.unexplained.steps:
-            p = out / f"diagnosis-shape-{st.covariate}.png"
-            plot_shape(st, prev, prev_error, diag.data, p)
-            paths.append(p)
+            if st.is_empirical:
+                p = out / f"diagnosis-shape-{st.covariate}.png"
+                plot_shape(st, prev, prev_error, diag.data, p)
+                paths.append(p)
             prev, prev_error = st.fit, st.headline.error_pct
     return paths
 
@@ -118,7 +119,7 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
     within = [s.headline.within_noise for s in diag.steps]
     if diag.unexplained is not None:
         for st in diag.unexplained.steps:
-            names.append(f"+ empirical({st.covariate})")
+            names.append(f"+ {st.added}")
             errors.append(st.headline.error_pct)
             noise.append(st.headline.noise_pct)
             within.append(st.headline.within_noise)

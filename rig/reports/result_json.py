@@ -101,7 +101,10 @@ def diagnosis_json(diag: Diagnosis, plots: list[Path], page: Path) -> tuple[list
         "start_model": diag.model_fit.model.name,
         "final_model": diag.final_fit.model.name,
         "added": diag.added,
-        "empirical": [st.covariate for st in diag.unexplained.steps] if diag.unexplained is not None else [],
+        "empirical": [st.covariate for st in diag.unexplained.empirical_steps] if diag.unexplained is not None else [],
+        "added_after_empirical": ([st.added for st in diag.unexplained.steps if not st.is_empirical]
+                                  if diag.unexplained is not None else []),
+        "stopped": diag.stopped,
         "power_law": fit_json(diag.power_law_fit, status=lambda_status(diag.data)),
         "candidates": [{"effect": c.effect.name, "dbic": c.dbic, "lrt": c.lrt, "df": c.df, "p_value": c.p_value,
                         "significant": c.significant} for c in diag.candidates],

@@ -98,7 +98,7 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
         after.excess_pct <= 0.5 * before.excess_pct or not want.named,
         catalogue.within_noise, after.within_noise, time.monotonic() - t0,
         worst.name if worst is not None else "",
-        [s.covariate for s in u.steps] if u is not None else [],
+        [s.covariate for s in u.empirical_steps] if u is not None else [],
     )
 
 
