@@ -70,6 +70,9 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
     facts = [read_facts(b, topic) for b in bags]
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     values = {**_agreed(facts), **manifest, **given}
+    unclear = [f for f in facts if f.baseline_problem]
+    if unclear and "baseline_m" not in {**manifest, **given}:
+        raise FolderImportError(f"{unclear[0].path}: {unclear[0].baseline_problem}")
     missing = [k for k in REQUIRED_KEYS if k not in values]
     if missing:
         raise FolderImportError(f"{src}: the bag does not say {', '.join(missing)}; pass {', '.join(FLAGS[k] for k in missing)}")
