@@ -20,6 +20,7 @@ from typing import Any
 import h5py
 
 from drivers.bag import BagCamera, BagFacts, BagStop, is_bag, read_facts
+from drivers.bag.contents import agree_metric_unit
 from drivers.bag.contents import frames as bag_frames
 from drivers.camera import CameraSettings
 from drivers.errors import FolderImportError
@@ -96,6 +97,8 @@ def _agreed(facts: list[BagFacts]) -> dict[str, Any]:
     """What every bag says alike: one camera at one resolution (else a one-line refusal naming the two bags)."""
     first = facts[0]
     for f in facts[1:]:
+        if f.depth_format.metres != first.depth_format.metres:
+            raise FolderImportError(f"{f.path} is {f.encoding}, {first.path} {first.encoding}; import the stops of one stream")
         if (f.width, f.height) != (first.width, first.height):
             raise FolderImportError(f"{f.path} is {f.width}x{f.height} px, {first.path} {first.width}x{first.height}; "
                                     "import the stops of one stream at one resolution")
@@ -103,6 +106,7 @@ def _agreed(facts: list[BagFacts]) -> dict[str, Any]:
             a, b = getattr(first, key), getattr(f, key)
             if math.isfinite(a) and math.isfinite(b) and abs(a - b) > INTRINSICS_TOLERANCE_PX:
                 raise FolderImportError(f"{f.path}: {key} = {b:g} px, but {first.path} says {a:g}; one camera per import")
+    agree_metric_unit(facts)
     return first.known()
 
 
@@ -155,7 +159,7 @@ def _spans(facts: list[BagFacts], src: Path, distance_m: float | None, in_time: 
 
 def _check_depth_unit(stop: BagStop, depth_unit_m: float) -> None:
     """Refuse a depth unit (or distance) that puts the stop's first valid frame more than 20 % from its distance."""
-    for frame in bag_frames(stop.facts, stop.window_ms):
+    for frame in bag_frames(stop.facts, stop.window_ms, depth_unit_m):
         counts = center_counts(frame.depth)
         if counts is not None:
             break
@@ -176,6 +180,9 @@ def _record(stops: list[BagStop], values: dict[str, Any], src: Path, path: Path,
     identity = {"camera_model": str(values.get("camera_model", "")), "camera_serial": str(values.get("camera_serial", "")),
                 "camera_firmware": first.camera_firmware}
     extra = {"imported_from": str(src.resolve()), **first.extra}
+    if first.depth_format.metres and calibration["depth_unit_m"] != first.depth_unit_m:  # --depth-unit-m for metres
+        extra.pop("metric_depth", None)
+        extra["depth_unit_source"] = f"{first.depth_format} metres rounded to counts of {calibration['depth_unit_m']:g} m (given)"
     camera = BagCamera(stops, settings, calibration, identity, extra)
     params = dict(source_folder=str(src.resolve()), stops_m=[s.distance_m for s in stops], stop_folders=[s.label for s in stops],
                   frames_per_stop=[s.n_frames for s in stops], projector_on=settings.projector_on,

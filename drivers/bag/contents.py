@@ -5,9 +5,10 @@ writes a ROS 1 bag: `/device_0/sensor_N/Depth_0/image/data`, `.../info/camera_in
 options at record time on `/device_0/sensor_N/option/<Name>/value`, per-frame metadata on
 `.../image/metadata`, the device's name, serial and firmware on `/device_0/info`) and ROS 1 / ROS 2
 bags (`.bag`, `.db3`, `.mcap`, or a ROS 2 bag folder) from realsense-ros, depthai-ros and the like
-(`/camera/depth/image_rect_raw` with `/camera/depth/camera_info`; drivers/bag/camera_topics.py). Depth must be integer counts
-(`16UC1` or `mono16`); in a ROS bag their unit is the millimetre (REP 118), in a RealSense bag the
-recorded `Depth Units` option. See docs/import.md.
+(`/camera/depth/image_rect_raw` with `/camera/depth/camera_info`; drivers/bag/camera_topics.py). Depth is integer
+counts (`16UC1`, `mono16`; in a ROS bag millimetres by REP 118, in a RealSense bag the recorded `Depth Units`
+option) or metres (`32FC1`, turned into counts by drivers/bag/metric_depth.py), as a raw Image or image_transport's
+compressedDepth (drivers/bag/depth_messages.py). See docs/import.md.
 """
 
 from __future__ import annotations
@@ -21,17 +22,17 @@ import numpy as np
 
 from ..errors import FolderImportError
 from .camera_topics import aligned_reason, camera_namespace, image_topic, is_depth_like, stream_namespace
+from .depth_messages import (COMPRESSED_IMAGE, IMAGE, DepthFormat, DepthMessageError, decode, depth_format,
+                             quantisation)
+from .metric_depth import DepthRangeError, MetricDepthScan, to_counts
 from .reading import field as info_field
 from .reading import first, messages, open_bag, stamp_ms
 from .stereo_baseline import CAMERA_INFO, find_baseline
 
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
-IMAGE = "sensor_msgs/msg/Image"
-IMAGE_TYPES = (IMAGE,)
+IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE)
 KEY_VALUE = "diagnostic_msgs/msg/KeyValue"
 FLOAT32 = "std_msgs/msg/Float32"
-#: integer depth encodings rig reads; REP 118: 16UC1 depth images are in millimetres
-DEPTH_ENCODINGS = ("16UC1", "mono16")
 ROS_DEPTH_UNIT_M = 1e-3
 
 
@@ -67,8 +68,11 @@ class BagFacts:
     extra: dict[str, Any] = field(default_factory=dict)
     #: each depth frame's header stamp, in ms, in bag order
     stamps_ms: list[float] = field(default_factory=list)
+    depth_format: DepthFormat = DepthFormat("16UC1")
     #: why the bag does not say the baseline although it has some for other cameras, or disagrees ('' if not so)
     baseline_problem: str = ""
+    #: depth in metres: what its frames hold (metric_depth), for the unit its counts get
+    metric_scan: MetricDepthScan | None = None
 
     def known(self) -> dict[str, Any]:
         """The import keys this bag gives (the manifest's names: fx, ..., projector_on, exposure_us, gain)."""
@@ -124,11 +128,19 @@ def _depth_topic(r: Any, path: Path, topic: str | None) -> Any:
     return chosen[0]
 
 
+def _depth_image(path: Path, topic: str, msg: Any, fmt: DepthFormat, number: int) -> np.ndarray:
+    """Frame `number` (from 1) of the topic decoded: uint16 counts or float32 metres; a one-line error if it cannot be."""
+    try:
+        return decode(msg, fmt)
+    except DepthMessageError as e:
+        raise FolderImportError(f"{path}: {topic} frame {number}: {e}") from None
+
+
 def _facts(r: Any, path: Path, topic: str | None) -> BagFacts:
     depth = _depth_topic(r, path, topic)
     realsense = depth.topic.startswith("/device_") and depth.topic.endswith("/image/data")
-    first_msg = None
-    n = 0
+    first_msg, fmt, scan = None, DepthFormat(""), None
+    n, height, width = 0, 0, 0
     stamps = []
     for c, _t, raw in messages(r, [depth]):
         n += 1
@@ -136,13 +148,21 @@ def _facts(r: Any, path: Path, topic: str | None) -> BagFacts:
         stamps.append(stamp_ms(msg))
         if first_msg is None:
             first_msg = msg
+            try:
+                fmt = depth_format(msg, c.msgtype, depth.topic)
+            except DepthMessageError as e:
+                raise FolderImportError(f"{path}: {e}") from None
+            image = _depth_image(path, depth.topic, msg, fmt, n)
+            height, width = image.shape
+            scan = MetricDepthScan() if fmt.metres else None
+        elif scan is not None:
+            image = _depth_image(path, depth.topic, msg, fmt, n)
+        if scan is not None:  # float metres: every frame, for the unit its counts will have (metric_depth)
+            scan.add(image)
     if first_msg is None:
         raise FolderImportError(f"{path}: the topic {depth.topic} holds no frame")
-    if first_msg.encoding not in DEPTH_ENCODINGS or first_msg.is_bigendian:
-        raise FolderImportError(f"{path}: {depth.topic} is {first_msg.encoding}{' big-endian' if first_msg.is_bigendian else ''}; "
-                                f"rig reads integer depth ({' or '.join(DEPTH_ENCODINGS)}, little-endian): record the raw depth topic")
-    facts = BagFacts(path, depth.topic, "realsense" if realsense else "ros", n, int(first_msg.width), int(first_msg.height),
-                     first_msg.encoding, stamps_ms=stamps)
+    facts = BagFacts(path, depth.topic, "realsense" if realsense else "ros", n, width, height, str(fmt),
+                     stamps_ms=stamps, depth_format=fmt)
     stream = depth.topic[: -len("/image/data")] if realsense else stream_namespace(depth.topic)
     info_topic = f"{stream}/info/camera_info" if realsense else f"{stream}/camera_info"
     infos = {c.topic: c for c in r.connections if c.msgtype == CAMERA_INFO}
@@ -152,11 +172,16 @@ def _facts(r: Any, path: Path, topic: str | None) -> BagFacts:
         facts.fx, facts.fy, facts.cx, facts.cy = k[0], k[4], k[2], k[5]
         facts.extra["camera_info_topic"] = info_topic
         facts.extra["distortion"] = {"model": str(info.distortion_model), "coeffs": [float(v) for v in info_field(info, "D")]}
+    if fmt.compression:
+        a, b = quantisation(first_msg)
+        facts.extra["compressed_depth"] = {"format": str(fmt)}
+        if fmt.metres:  # inverse depth in 16 bits: v = A / z + B, a step of z^2 / A m at z m
+            facts.extra["compressed_depth"].update(depth_quant_a=a, depth_quant_b=b,
+                                                   note=f"sent as inverse depth in 16 bits: a step of z^2 / {a:g} m at z m")
     if realsense:
         _realsense(r, facts, stream)
     else:
-        facts.depth_unit_m = ROS_DEPTH_UNIT_M
-        facts.extra["depth_unit_source"] = "REP 118: 16UC1 depth is in millimetres"
+        _ros_depth_unit(facts, scan)
         camera = camera_namespace(depth.topic)
         others = {camera_namespace(c.topic) for c in r.connections
                   if c.msgtype in IMAGE_TYPES and is_depth_like(c.topic)} - {camera}
@@ -166,7 +191,45 @@ def _facts(r: Any, path: Path, topic: str | None) -> BagFacts:
             facts.extra["baseline_source"] = found.source
     facts.extra["bag_format"] = "RealSense (librealsense recorder, ROS 1 bag)" if realsense else _ros_format(path)
     facts.extra["depth_topic"] = depth.topic
+    facts.extra["depth_encoding"] = str(fmt)
     return facts
+
+
+def _ros_depth_unit(facts: BagFacts, scan: MetricDepthScan | None) -> None:
+    """Integer depth: 1 mm (REP 118). Metres: the unit metric_depth chooses from every frame, said in the metadata."""
+    if scan is None:
+        facts.depth_unit_m = ROS_DEPTH_UNIT_M
+        facts.extra["depth_unit_source"] = "REP 118: 16UC1 depth is in millimetres"
+    else:
+        facts.metric_scan = scan
+        _metric_unit(facts, scan)
+
+
+def agree_metric_unit(facts: list[BagFacts]) -> None:
+    """Bags of depth in metres imported together: one unit, chosen from all their frames (metric_depth)."""
+    scans = [f.metric_scan for f in facts if f.metric_scan is not None]
+    if len(scans) > 1:
+        merged = MetricDepthScan.merged(scans)
+        for f in facts:
+            _metric_unit(f, merged)
+
+
+def _metric_unit(facts: BagFacts, scan: MetricDepthScan) -> None:
+    try:
+        unit_m, exact = scan.unit()
+    except DepthRangeError as e:
+        facts.depth_unit_m = math.nan
+        facts.extra["depth_unit_source"] = f"{facts.depth_format} metres: {e}"
+        return
+    facts.depth_unit_m = unit_m
+    facts.extra["metric_depth"] = {"unit_m": unit_m, "exact": exact, "max_depth_m": scan.max_m}
+    if exact:
+        facts.extra["depth_unit_source"] = (f"{facts.depth_format} metres (REP 118), every value on a grid of {unit_m * 1e3:g} mm: "
+                                            "counts of it hold them exactly")
+    else:
+        facts.extra["depth_unit_source"] = (f"{facts.depth_format} metres (REP 118) rounded to counts of {unit_m * 1e3:g} mm, "
+                                            f"the finest 1-2-5 step that holds the farthest depth ({scan.max_m:.4g} m) in 16 bits; "
+                                            "the rounding adds q^2/12 of variance, as for any depth unit")
 
 
 def _ros_format(path: Path) -> str:
@@ -210,6 +273,20 @@ def _realsense(r: Any, facts: BagFacts, stream: str) -> None:
     facts.extra["device_info"] = identity
 
 
+def _same_stream(facts: BagFacts, msg: Any, msgtype: str, number: int) -> np.ndarray:
+    """Frame `number` (from 1) decoded, if it is of the first frame's format and size; else a one-line error."""
+    try:
+        fmt = depth_format(msg, msgtype, facts.topic)
+    except DepthMessageError as e:
+        raise FolderImportError(f"{facts.path}: frame {number}: {e}; the first frame is {facts.encoding}") from None
+    image = _depth_image(facts.path, facts.topic, msg, fmt, number) if fmt == facts.depth_format else None
+    if image is None or image.shape != (facts.height, facts.width):
+        what = f"{image.shape[1]}x{image.shape[0]} {fmt}" if image is not None else str(fmt)
+        raise FolderImportError(f"{facts.path}: frame {number} is {what}, the first {facts.width}x{facts.height} "
+                                f"{facts.encoding}; one stream per import")
+    return image
+
+
 @dataclass
 class BagFrame:
     depth: np.ndarray  # uint16 (height, width), depth counts, 0 = no data
@@ -218,11 +295,14 @@ class BagFrame:
     metadata: dict[str, str]  # the frame's own metadata (RealSense bags), else {}
 
 
-def frames(facts: BagFacts, window_ms: tuple[float, float] | None = None) -> Iterator[BagFrame]:
+def frames(facts: BagFacts, window_ms: tuple[float, float] | None = None,
+           depth_unit_m: float | None = None) -> Iterator[BagFrame]:
     """The depth frames in recording order, one at a time, with their number, time and metadata; with `window_ms`,
-    only those whose stamp lies in [start, end] ms."""
+    only those whose stamp lies in [start, end] ms. Depth in metres becomes counts of `depth_unit_m` (default: the
+    unit the bag's frames gave, `facts.depth_unit_m`)."""
+    unit_m = facts.depth_unit_m if depth_unit_m is None else depth_unit_m
     with open_bag(facts.path) as r:
-        depth = [c for c in r.connections if c.topic == facts.topic and c.msgtype == IMAGE]
+        depth = [c for c in r.connections if c.topic == facts.topic and c.msgtype in IMAGE_TYPES]
         meta_topic = facts.topic[: -len("/data")] + "/metadata" if facts.kind == "realsense" else None
         by_time: dict[int, dict[str, str]] = {}
         metas = [c for c in r.connections if c.topic == meta_topic and c.msgtype == KEY_VALUE]
@@ -234,11 +314,12 @@ def frames(facts: BagFacts, window_ms: tuple[float, float] | None = None) -> Ite
             stamp = stamp_ms(msg)
             if window_ms is not None and not window_ms[0] <= stamp <= window_ms[1]:
                 continue
-            if (msg.width, msg.height, msg.encoding) != (facts.width, facts.height, facts.encoding):
-                raise FolderImportError(f"{facts.path}: frame {index + 1} is {msg.width}x{msg.height} {msg.encoding}, the first "
-                                        f"{facts.width}x{facts.height} {facts.encoding}; one stream per import")
-            rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, int(msg.step))
-            image = rows[:, : 2 * msg.width].copy().view("<u2").astype(np.uint16, copy=False)
+            image = _same_stream(facts, msg, c.msgtype, index + 1)
+            if facts.depth_format.metres:
+                try:
+                    image = to_counts(image, unit_m)
+                except DepthRangeError as e:
+                    raise FolderImportError(f"{facts.path}: {facts.topic} frame {index + 1}: {e}") from None
             meta = by_time.get(t, {})
             seq = getattr(msg.header, "seq", 0)
             number = int(float(meta["Frame Counter"])) if "Frame Counter" in meta else (int(seq) if seq else index)
