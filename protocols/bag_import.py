@@ -83,14 +83,35 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
         stops = _stops(facts, values, distance_m, src)
     for s in stops:
         _check_depth_unit(s, float(values["depth_unit_m"]))
+    notes = import_notes(facts)
     report = progress or (lambda e: None)
     report(ProgressEvent("message", text=f"importing {sum(s.n_frames for s in stops)} frames in {len(stops)} "
-                                         f"stop{'s' * (len(stops) != 1)} from {src} ({facts[0].extra['bag_format']})"))
+                                         f"stop{'s' * (len(stops) != 1)} from {src} ({facts[0].extra['bag_format']})"
+                                         + "".join(f"; note: {n}" for n in notes)))
     def fill(tmp: Path) -> None:
         _record(stops, values, src, tmp, progress)
         _provenance(tmp, src, facts, manifest, given, stops)
+        if notes:
+            with h5py.File(tmp, "a", libver=HDF5_LIBVER) as f:
+                f.attrs["import_notes"] = json.dumps(notes)
 
     return write_aside(src, out, fill)
+
+
+def import_notes(facts: list[BagFacts]) -> list[str]:
+    """What a reader of the recording must know about the depth imported: depth aligned to another camera (taken
+    as it is, with this note in the output and the recording, `Recording.notes`)."""
+    aligned = sorted({f.aligned for f in facts if f.aligned})
+    return [f"{a}; a fit of it describes the aligned stream, not the sensor: import the sensor's own depth topic "
+            "for that" for a in aligned]
+
+
+def recorded_notes(path: Path) -> list[str]:
+    """The notes an import left in the recording at `path` (`import_notes`; none for other recordings)."""
+    with h5py.File(path, "r") as f:
+        raw = f.attrs.get("import_notes")
+    notes = json.loads(raw) if raw is not None else []
+    return [str(n) for n in notes] if isinstance(notes, list) else []
 
 
 def _agreed(facts: list[BagFacts]) -> dict[str, Any]:

@@ -1,5 +1,5 @@
 """Every depth stream a lab records comes in right: several cameras in one bag, 32FC1 metres, image_transport's
-compressedDepth (PNG and RVL).
+compressedDepth (PNG and RVL), and depth aligned to a colour camera.
 
 The bags are written with rosbags' own writer and typestore (tests/ros_bags.py `write_cameras`), in the topic layouts
 of realsense-ros 2.x and 4.x and depthai-ros (drivers/bag/camera_topics.py cites them). compressedDepth payloads are
@@ -278,3 +278,33 @@ def test_a_compressed_format_rig_does_not_read_is_named_in_one_line(tmp_path, tr
     bag = write_cameras(tmp_path / "c", [Camera(_counts(), compress=lambda f: (form, b"\0" * 64), transport=transport)])
     message = _refused(bag, tmp_path / "c.h5", *ARGS)
     assert f"is a CompressedImage in format {form!r}, which rig does not read" in message, message
+
+
+# --- depth aligned to a colour camera ---------------------------------------------------------------------------
+
+ALIGNED_NOTE = "resampled into another camera's pixels, so its noise is not the sensor's own"
+
+
+def test_aligned_depth_is_imported_with_a_note_in_the_output_and_the_recording(tmp_path, capsys):
+    cam = Camera(_counts(), depth="aligned_depth_to_color/image_raw", info="aligned_depth_to_color/camera_info",
+                 frame_id="camera_color_optical_frame")
+    bag = write_cameras(tmp_path / "aligned", [cam])
+    with _import(bag, tmp_path / "a.h5", *ARGS) as rec:
+        said = capsys.readouterr()
+        progress = next(x for x in said.err.splitlines() if x.startswith("importing"))
+        (done,) = said.out.splitlines()
+        for line in (progress, done):  # the progress line and the command's one line of output
+            assert "; note: aligned depth (the topic /camera/aligned_depth_to_color/image_raw is aligned depth): " \
+                   + ALIGNED_NOTE in line, line
+        assert any(n.startswith("imported: aligned depth") and ALIGNED_NOTE in n for n in rec.notes()), rec.notes()
+    assert ALIGNED_NOTE in _camera_extra(tmp_path / "a.h5")["aligned_depth"]
+
+
+@pytest.mark.parametrize("frame_id, aligned", [("oak_rgb_camera_optical_frame", True), ("oak_right_camera_optical_frame", False)])
+def test_depth_in_a_colour_camera_s_frame_is_known_for_aligned(tmp_path, frame_id, aligned):
+    """depthai-ros aligns its stereo depth to the RGB camera on the device; only the header's frame says so."""
+    bag = write_cameras(tmp_path / "oak", [Camera(_counts(), ns="/oak", depth="stereo/image_raw", info="stereo/camera_info",
+                                                  right_info="left/camera_info", frame_id=frame_id)], "db3")
+    facts = read_facts(bag)
+    assert facts.topic == "/oak/stereo/image_raw" and bool(facts.aligned) == aligned, facts.aligned
+    assert (f"its frame {frame_id} is a colour camera's" in facts.aligned) == aligned

@@ -71,6 +71,8 @@ class BagFacts:
     depth_format: DepthFormat = DepthFormat("16UC1")
     #: why the bag does not say the baseline although it has some for other cameras, or disagrees ('' if not so)
     baseline_problem: str = ""
+    #: why this depth is aligned to another camera ('' when it is the sensor's own)
+    aligned: str = ""
     #: depth in metres: what its frames hold (metric_depth), for the unit its counts get
     metric_scan: MetricDepthScan | None = None
 
@@ -189,6 +191,10 @@ def _facts(r: Any, path: Path, topic: str | None) -> BagFacts:
         facts.baseline_m, facts.baseline_problem = found.baseline_m, found.problem
         if found.source:
             facts.extra["baseline_source"] = found.source
+        why = aligned_reason(depth.topic, str(getattr(first_msg.header, "frame_id", "")))
+        if why:
+            facts.aligned = f"aligned depth ({why}): resampled into another camera's pixels, so its noise is not the sensor's own"
+            facts.extra["aligned_depth"] = facts.aligned
     facts.extra["bag_format"] = "RealSense (librealsense recorder, ROS 1 bag)" if realsense else _ros_format(path)
     facts.extra["depth_topic"] = depth.topic
     facts.extra["depth_encoding"] = str(fmt)
