@@ -20,6 +20,7 @@ from typing import Any
 import h5py
 
 from drivers.bag import BagCamera, BagFacts, BagStop, is_bag, read_facts
+from drivers.bag.contents import agree_metric_unit
 from drivers.bag.contents import frames as bag_frames
 from drivers.camera import CameraSettings
 from drivers.errors import FolderImportError
@@ -70,6 +71,9 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
     facts = [read_facts(b, topic) for b in bags]
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     values = {**_agreed(facts), **manifest, **given}
+    unclear = [f for f in facts if f.baseline_problem]
+    if unclear and "baseline_m" not in {**manifest, **given}:
+        raise FolderImportError(f"{unclear[0].path}: {unclear[0].baseline_problem}")
     missing = [k for k in REQUIRED_KEYS if k not in values]
     if missing:
         raise FolderImportError(f"{src}: the bag does not say {', '.join(missing)}; pass {', '.join(FLAGS[k] for k in missing)}")
@@ -79,20 +83,43 @@ def import_bags(src: str | Path, out: str | Path, overrides: dict[str, Any] | No
         stops = _stops(facts, values, distance_m, src)
     for s in stops:
         _check_depth_unit(s, float(values["depth_unit_m"]))
+    notes = import_notes(facts)
     report = progress or (lambda e: None)
     report(ProgressEvent("message", text=f"importing {sum(s.n_frames for s in stops)} frames in {len(stops)} "
-                                         f"stop{'s' * (len(stops) != 1)} from {src} ({facts[0].extra['bag_format']})"))
+                                         f"stop{'s' * (len(stops) != 1)} from {src} ({facts[0].extra['bag_format']})"
+                                         + "".join(f"; note: {n}" for n in notes)))
     def fill(tmp: Path) -> None:
         _record(stops, values, src, tmp, progress)
         _provenance(tmp, src, facts, manifest, given, stops)
+        if notes:
+            with h5py.File(tmp, "a", libver=HDF5_LIBVER) as f:
+                f.attrs["import_notes"] = json.dumps(notes)
 
     return write_aside(src, out, fill)
+
+
+def import_notes(facts: list[BagFacts]) -> list[str]:
+    """What a reader of the recording must know about the depth imported: depth aligned to another camera (taken
+    as it is, with this note in the output and the recording, `Recording.notes`)."""
+    aligned = sorted({f.aligned for f in facts if f.aligned})
+    return [f"{a}; a fit of it describes the aligned stream, not the sensor: import the sensor's own depth topic "
+            "for that" for a in aligned]
+
+
+def recorded_notes(path: Path) -> list[str]:
+    """The notes an import left in the recording at `path` (`import_notes`; none for other recordings)."""
+    with h5py.File(path, "r") as f:
+        raw = f.attrs.get("import_notes")
+    notes = json.loads(raw) if raw is not None else []
+    return [str(n) for n in notes] if isinstance(notes, list) else []
 
 
 def _agreed(facts: list[BagFacts]) -> dict[str, Any]:
     """What every bag says alike: one camera at one resolution (else a one-line refusal naming the two bags)."""
     first = facts[0]
     for f in facts[1:]:
+        if f.depth_format.metres != first.depth_format.metres:
+            raise FolderImportError(f"{f.path} is {f.encoding}, {first.path} {first.encoding}; import the stops of one stream")
         if (f.width, f.height) != (first.width, first.height):
             raise FolderImportError(f"{f.path} is {f.width}x{f.height} px, {first.path} {first.width}x{first.height}; "
                                     "import the stops of one stream at one resolution")
@@ -100,6 +127,7 @@ def _agreed(facts: list[BagFacts]) -> dict[str, Any]:
             a, b = getattr(first, key), getattr(f, key)
             if math.isfinite(a) and math.isfinite(b) and abs(a - b) > INTRINSICS_TOLERANCE_PX:
                 raise FolderImportError(f"{f.path}: {key} = {b:g} px, but {first.path} says {a:g}; one camera per import")
+    agree_metric_unit(facts)
     return first.known()
 
 
@@ -152,7 +180,7 @@ def _spans(facts: list[BagFacts], src: Path, distance_m: float | None, in_time: 
 
 def _check_depth_unit(stop: BagStop, depth_unit_m: float) -> None:
     """Refuse a depth unit (or distance) that puts the stop's first valid frame more than 20 % from its distance."""
-    for frame in bag_frames(stop.facts, stop.window_ms):
+    for frame in bag_frames(stop.facts, stop.window_ms, depth_unit_m):
         counts = center_counts(frame.depth)
         if counts is not None:
             break
@@ -173,6 +201,9 @@ def _record(stops: list[BagStop], values: dict[str, Any], src: Path, path: Path,
     identity = {"camera_model": str(values.get("camera_model", "")), "camera_serial": str(values.get("camera_serial", "")),
                 "camera_firmware": first.camera_firmware}
     extra = {"imported_from": str(src.resolve()), **first.extra}
+    if first.depth_format.metres and calibration["depth_unit_m"] != first.depth_unit_m:  # --depth-unit-m for metres
+        extra.pop("metric_depth", None)
+        extra["depth_unit_source"] = f"{first.depth_format} metres rounded to counts of {calibration['depth_unit_m']:g} m (given)"
     camera = BagCamera(stops, settings, calibration, identity, extra)
     params = dict(source_folder=str(src.resolve()), stops_m=[s.distance_m for s in stops], stop_folders=[s.label for s in stops],
                   frames_per_stop=[s.n_frames for s in stops], projector_on=settings.projector_on,

@@ -272,6 +272,7 @@ class Recording:
         if saturated:
             out.append(saturation_note(saturated, self.calibration.width * self.calibration.height))
         out += [f"skipped {s}" for s in self.skipped]
+        out += [f"imported: {n}" for n in json.loads(self.attrs.get("import_notes", "[]"))]  # protocols/bag_import.py
         if len(labels) == 1 and self.protocol != "tilted":
             out.append("one stop only: the range dependence rests on that stop's spread of ranges")
         return out

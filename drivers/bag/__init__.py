@@ -2,7 +2,8 @@
 
 `contents` opens a bag with rosbags and reads what it says (depth topic, camera_info, the RealSense
 recorder's options, device info and per-frame metadata), `camera` replays bags to the runner, one per
-stop. The import itself (stops, plan, runner, provenance) is `protocols.bag_import`. See docs/import.md.
+stop. `camera_topics` and `stereo_baseline` tell a bag's cameras apart; `depth_messages` (with `rvl`) decodes a
+depth message, raw or compressedDepth, and `metric_depth` turns depth in metres into counts. The import itself (stops, plan, runner, provenance) is `protocols.bag_import`. See docs/import.md.
 """
 
 from .camera import BagCamera, BagStop

@@ -87,7 +87,7 @@ class BagCamera(DepthCamera):
     def frames(self, n: int, *, ir: bool = False) -> Iterator[Frame]:
         stop = next(self._pending)
         served = 0
-        for f in frames(stop.facts, stop.window_ms):
+        for f in frames(stop.facts, stop.window_ms, self.calibration["depth_unit_m"]):
             yield Frame(depth=f.depth, frame_number=f.frame_number,
                         timestamp_ms=f.timestamp_ms if math.isfinite(f.timestamp_ms) else math.nan,
                         metadata=frame_metadata(f.metadata, self.recorded))

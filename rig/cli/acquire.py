@@ -207,11 +207,13 @@ def cmd_import(args: argparse.Namespace) -> int:
     from ..reports.progress import TerminalProgress
 
     progress = None if verbosity(args) == QUIET else TerminalProgress()
+    notes: list[str] = []
     if bag_source(Path(args.folder)):
-        from protocols.bag_import import import_bags
+        from protocols.bag_import import import_bags, recorded_notes
 
         out = import_bags(args.folder, args.output, import_overrides(args), progress=progress, topic=args.topic,
                           distance_m=args.distance_m, stops_in_time=args.stops_in_time, stops_at_gaps=args.stops_at_gaps)
+        notes = recorded_notes(out)
     elif any(v is not None for v in (args.distance_m, args.topic, args.stops_in_time, args.stops_at_gaps)):
         from drivers.errors import FolderImportError
         from drivers.folder.manifest import MANIFEST_NAME
@@ -220,6 +222,6 @@ def cmd_import(args: argparse.Namespace) -> int:
                                 f"stops' distances in {MANIFEST_NAME} (see docs/import.md)")
     else:
         out = import_folder(args.folder, args.output, import_overrides(args), progress=progress)
-    print(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})")
+    print(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})" + "".join(f"; note: {n}" for n in notes))
     return 0
 
