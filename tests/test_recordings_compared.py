@@ -92,13 +92,17 @@ def test_two_units_are_alike_and_projector_off_changes_the_law(runs, tmp_path):
     a, b = runs["alike"][:2]
     r = rig_in_process("compare", a, b, "--jobs", "1", "--plot", tmp_path / "units.png", "-q")
     assert r.returncode == 0, r.stderr
-    assert "are alike within their errors" in r.stdout and "k within noise" in r.stdout
+    assert "the same set-up (depth unit, baseline, intrinsics, resolution" in r.stdout
+    assert "Alike within their errors" in r.stdout and "k within noise" in r.stdout
     r = rig_in_process("compare", a, runs["off"][0], "--jobs", "1", "--plot", tmp_path / "onoff.png",
                        "--report", tmp_path / "cmp", "--json")
     doc = json.loads(r.stdout)
-    lam = next(d for d in doc["differences"][0] if d["parameter"] == "lambda")
+    lam = next(d for d in doc["differences"][0]["parameters"] if d["parameter"] == "lambda")
     assert lam["significant"] and abs(lam["z"]) > 10 and lam["value_a"] > 2.7 and lam["value_b"] < 2.3
-    assert "lambda differs by" in doc["verdicts"][0] and "the law itself changes" in doc["verdicts"][0]
+    # the set-up first: the projector differs, and it is what lambda's difference is blamed on
+    verdict = doc["verdicts"][0]
+    assert verdict.index("the set-up differs: projector on in run-1.h5 against off in passive-9.h5") < verdict.index(
+        "lambda differs by") and lam["causes"] == ["projector_on"]
     fits = {Path(f["path"]).name: f for f in doc["fits"]}
     assert fits["passive-9.h5"]["projector_on"] is False
     assert (tmp_path / "onoff.png").stat().st_size > 5000
@@ -108,7 +112,7 @@ def test_two_units_are_alike_and_projector_off_changes_the_law(runs, tmp_path):
     r = rig_in_process("compare", a, runs["off"][0], "--model", "active", "--jobs", "1", "--plot", tmp_path / "x.png", "--json")
     doc = json.loads(r.stdout)
     assert [f["model"] for f in doc["fits"]] == ["active", "passive"]
-    assert [d["parameter"] for d in doc["differences"][0]] == ["k"]
+    assert [d["parameter"] for d in doc["differences"][0]["parameters"]] == ["k"]
 
 
 def test_a_model_that_does_not_fit_the_runs_is_named_in_the_verdict():
@@ -136,7 +140,7 @@ def test_the_differences_are_in_standard_errors_of_the_difference(runs):
     # the same difference over math.hypot there and numpy's hypot here, each within 1 ulp (2 u), and a quotient each
     u = np.finfo(np.float64).eps / 2
     for pair in pairs:
-        for d in pair:
+        for d in pair.parameters:
             se = np.hypot(d.a.errors[d.parameter], d.b.errors[d.parameter])
             assert d.z == pytest.approx((d.value_a - d.value_b) / se, rel=6 * u, abs=0)
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import asdict
 from pathlib import Path
 
 from .options import refuse_unwritable
@@ -99,7 +98,8 @@ def _runs(paths: list[str]):
 
 def cmd_compare_recordings(args: argparse.Namespace) -> int:
     """`rig compare a.h5 b.h5 [...]`: the same model fitted to each, and every pair's differences judged."""
-    from ..recordings.comparison import differences, pair_verdict
+    from ..recordings.comparison import differences
+    from ..reports.comparison_json import compare_document
     from ..reports.comparison_plots import plot_overlay
     from ..reports.comparison_text import render_compare
     from ..reports.report_pages import write_compare_page
@@ -124,10 +124,7 @@ def cmd_compare_recordings(args: argparse.Namespace) -> int:
         extra = [plot_overlay(results, Path(args.report) / "compare-overlay.png")]
         page = write_compare_page(results, pairs, extra, args.report, text, _runs(paths))
     if args.json:
-        print(dumps({"schema": "rig.recordings.comparison/1", "command": "compare", "fits": [_fit_json(r) for r in results],
-                     "differences": [[_difference_json(d) for d in p] for p in pairs],
-                     "verdicts": [pair_verdict(p) for p in pairs], "plots": [str(p) for p in plots],
-                     "report": str(page) if page else None}))
+        print(dumps(compare_document(results, pairs, plots, page)))
     else:
         for r in results:
             for note in r.notes:
@@ -139,7 +136,8 @@ def cmd_compare_recordings(args: argparse.Namespace) -> int:
 
 def cmd_repeatability(args: argparse.Namespace) -> int:
     """`rig repeatability run1.h5 run2.h5 ...`: the run-to-run scatter of each parameter against its errors."""
-    from ..recordings.comparison import repeatability_verdict, scatter
+    from ..recordings.comparison import scatter
+    from ..reports.comparison_json import repeatability_document
     from ..reports.comparison_plots import plot_runs
     from ..reports.comparison_text import render_repeatability
     from ..reports.report_pages import write_repeatability_page
@@ -162,25 +160,11 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
         extra = [plot_runs(results, scatters, Path(args.report) / "repeatability-runs.png")]
         page = write_repeatability_page(results, scatters, extra, args.report, text, _runs(paths))
     if args.json:
-        print(dumps({"schema": "rig.recordings.comparison/1", "command": "repeatability", "fits": [_fit_json(r) for r in results],
-                     "scatter": [asdict(s) | {"honest": s.honest, "sentence": s.sentence()} for s in scatters],
-                     "verdicts": [repeatability_verdict(scatters, results)], "plots": [str(p) for p in plots],
-                     "report": str(page) if page else None}))
+        print(dumps(repeatability_document(results, scatters, plots, page)))
     else:
         print(text)
         print(f"\nplot: {plots[0]}" + (f"\nreport: {page}" if page else ""))
     return 2 if any(r.error for r in results) else 0
-
-
-def _fit_json(r) -> dict:
-    keep = ("path", "model", "projector_on", "values", "errors", "free", "units", "n_obs", "headline_pct", "noise_pct",
-            "verdict", "notes", "error")
-    return {k: getattr(r, k) for k in keep}
-
-
-def _difference_json(d) -> dict:
-    return {"a": d.a.path, "b": d.b.path, "parameter": d.parameter, "value_a": d.value_a, "value_b": d.value_b,
-            "z": d.z, "p": d.p, "significant": d.significant, "sentence": d.sentence()}
 
 
 def fit_many_command(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 from ..models import parse_model
 from ..models.export import noise_model_document
 from ..noise_model import NoiseModel, NoiseModelError
+from .camera_setup import read_setup
 
 #: the model fitted when none is given: the paper's k Z^lambda, both free
 PAPER = "power_law"
@@ -59,6 +60,7 @@ class RecordingResult:
     started_utc: str = ""
     camera: str = ""
     error: str = ""
+    setup: dict[str, object] = field(default_factory=dict)  # what it was made with (`rig.recordings.camera_setup`)
 
     @property
     def name(self) -> str:
@@ -89,7 +91,7 @@ def summarise(path: str, fit, d, h, measured, rec, notes: list[str], projector_o
         {n: float(fit.errors.get(n, float("nan"))) for n, _ in fit.model.free()}, [n for n, _ in fit.model.free()],
         {n: p.unit for n, p in fit.model.parameters()}, int(fit.n_obs), float(h.error_pct), float(h.noise_pct),
         h.verdict(), [float(x) for x in measured.z_m], [float(x) for x in measured.sigma_m],
-        [float(x) for x in measured.se_sigma_m], z, sigma, label, list(notes), started, camera)
+        [float(x) for x in measured.se_sigma_m], z, sigma, label, list(notes), started, camera, setup=read_setup(rec))
 
 
 def axis_curve(fit, d, rec, z_measured) -> tuple[list[float], list[float], str]:

@@ -1,11 +1,13 @@
-"""The text of `rig compare a.h5 b.h5 ...` and `rig repeatability`: one row a recording (every parameter with its
-error), then the verdicts in words (`rig.recordings.comparison`)."""
+"""The text of `rig compare a.h5 b.h5 ...` and `rig repeatability`: first what differs in the set-up (a row an item,
+a column a recording), then one row a recording (every parameter with its error), then the verdicts in words
+(`rig.recordings.comparison`)."""
 
 from __future__ import annotations
 
 import math
 
-from ..recordings.comparison import Difference, Scatter, pair_verdict, repeatability_verdict
+from ..recordings.camera_setup import setup_differences, shown
+from ..recordings.comparison import Pair, Scatter, recorded_labels, repeatability_verdict
 from ..recordings.recording_fits import RecordingResult
 
 
@@ -40,14 +42,34 @@ def aligned(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [header, *rows])
 
 
-def difference_rows(pairs: list[list[Difference]]) -> tuple[list[str], list[list[str]], list[bool]]:
+def setup_rows(results: list[RecordingResult]) -> tuple[list[str], list[list[str]], str]:
+    """(header, rows, the rest): a row for each set-up item that differs between the fitted recordings, and the items
+    that are the same in all, in words."""
+    fitted = [r for r in results if not r.error]
+    setups = [r.setup for r in fitted]
+    rows = [[d.item.label, *(shown(d.item, v) for v in d.values)] for d in setup_differences(setups)]
+    differing = {row[0] for row in rows}
+    same = [label for label in recorded_labels(setups) if label not in differing]
+    return ["set-up", *(r.name for r in fitted)], rows, ", ".join(same)
+
+
+def render_setup(results: list[RecordingResult]) -> str:
+    header, rows, same = setup_rows(results)
+    if not rows:
+        return f"set-up: the same in every recording ({same or 'nothing recorded'})\n"
+    return aligned(header, rows) + "\n" + (f"the same in all: {same}\n" if same else "")
+
+
+def difference_rows(pairs: list[Pair]) -> tuple[list[str], list[list[str]], list[bool]]:
     header = ["a", "b", "parameter", "a - b", "standard errors", "p", "differs"]
     rows, marked = [], []
     for pair in pairs:
-        for d in pair:
-            rows.append([d.a.name, d.b.name, d.parameter, f"{d.value_a - d.value_b:.3g}", f"{d.z:+.1f}", f"{d.p:.1e}" if d.p > 0 else "< 1e-300",
-                         "yes" if d.significant else "no"])
-            marked.append(d.significant)
+        for d in pair.parameters:
+            verdict = ("no verdict (the model does not fit)" if d.significant is None else
+                       "yes" if d.differs else "explained by the set-up" if d.significant else "no")
+            rows.append([d.a.name, d.b.name, d.parameter, f"{d.value_a - d.value_b:.3g}", f"{d.z:+.1f}",
+                         f"{d.p:.1e}" if d.p > 0 else "< 1e-300", verdict])
+            marked.append(d.differs)
     return header, rows, marked
 
 
@@ -58,16 +80,16 @@ def scatter_rows(scatters: list[Scatter]) -> tuple[list[str], list[list[str]], l
     return header, rows, [not s.honest for s in scatters]
 
 
-def render_compare(results: list[RecordingResult], pairs: list[list[Difference]]) -> str:
-    lines = [aligned(*results_rows(results)), ""]
+def render_compare(results: list[RecordingResult], pairs: list[Pair]) -> str:
+    lines = [render_setup(results), aligned(*results_rows(results)), ""]
     header, rows, _ = difference_rows(pairs)
     if rows:
         lines += [aligned(header, rows), ""]
-    lines += [f"verdict: {pair_verdict(p)}" for p in pairs]
+    lines += [f"verdict: {p.verdict()}" for p in pairs]
     return "\n".join(lines)
 
 
 def render_repeatability(results: list[RecordingResult], scatters: list[Scatter]) -> str:
     header, rows, _ = scatter_rows(scatters)
-    return "\n".join([aligned(*results_rows(results)), "", aligned(header, rows), "",
+    return "\n".join([render_setup(results), aligned(*results_rows(results)), "", aligned(header, rows), "",
                       f"verdict: {repeatability_verdict(scatters, results)}"])

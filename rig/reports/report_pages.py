@@ -10,10 +10,10 @@ from protocols.recording import Recording, utc_now
 
 from .. import package_version
 from ..diagnosis.bins import pooled_sigma, sigma_by_range
-from ..recordings.comparison import Difference, Scatter, pair_verdict, repeatability_verdict
+from ..recordings.comparison import Pair, Scatter, repeatability_verdict
 from ..recordings.recording_fits import RecordingResult, summarise
 from .comparison_plots import plot_overlay
-from .comparison_text import difference_rows, results_rows, scatter_rows
+from .comparison_text import difference_rows, results_rows, scatter_rows, setup_rows
 from .html_page import figures, page, run_table, table
 from .run_info import RunInfo, run_info
 
@@ -51,12 +51,14 @@ def fit_report(path: str, fit, d, h, text: str, out_dir: str | Path, notes: list
                           run_info(path, utc_now(), package_version()))
 
 
-def write_compare_page(results: list[RecordingResult], pairs: list[list[Difference]], plots: list[Path],
+def write_compare_page(results: list[RecordingResult], pairs: list[Pair], plots: list[Path],
                        out_dir: str | Path, report: str, runs: list[RunInfo] | None = None) -> Path:
-    """compare.html: each recording's fit, the differences of each pair, the verdicts, the overlay plot."""
-    verdicts = "".join(f'<p class="summary">{html.escape(pair_verdict(p))}</p>' for p in pairs)
+    """compare.html: the verdicts, what differs in the set-up, each recording's fit, the differences of each pair,
+    the overlay plot."""
+    verdicts = "".join(f'<p class="summary">{html.escape(p.verdict())}</p>' for p in pairs)
     header, rows, marked = difference_rows(pairs)
-    body = (f"{verdicts}\n<h2>The fits</h2>\n{table(*results_rows(results))}\n<h2>Differences</h2>\n"
+    body = (f"{verdicts}\n<h2>Set-up</h2>\n{_setup(results)}\n<h2>The fits</h2>\n{table(*results_rows(results))}\n"
+            "<h2>Differences</h2>\n"
             f"{table(header, rows, marked)}\n<h2>Plots</h2>\n{figures(plots)}\n{_runs(runs)}\n"
             f"<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
     return _write(out_dir, "compare.html", page(f"Recordings compared: {', '.join(r.name for r in results)}", body))
@@ -66,10 +68,17 @@ def write_repeatability_page(results: list[RecordingResult], scatters: list[Scat
                              out_dir: str | Path, report: str, runs: list[RunInfo] | None = None) -> Path:
     """repeatability.html: the runs' fits, each parameter's scatter against its errors, the verdict, the plots."""
     header, rows, marked = scatter_rows(scatters)
-    body = (f'<p class="summary">{html.escape(repeatability_verdict(scatters, results))}</p>\n<h2>Scatter against the reported '
-            f"errors</h2>\n{table(header, rows, marked)}\n<h2>The runs</h2>\n{table(*results_rows(results))}\n"
+    body = (f'<p class="summary">{html.escape(repeatability_verdict(scatters, results))}</p>\n<h2>Set-up</h2>\n'
+            f"{_setup(results)}\n<h2>Scatter against the reported errors</h2>\n{table(header, rows, marked)}\n"
+            f"<h2>The runs</h2>\n{table(*results_rows(results))}\n"
             f"<h2>Plots</h2>\n{figures(plots)}\n{_runs(runs)}\n<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
     return _write(out_dir, "repeatability.html", page(f"Repeatability over {len(results)} runs", body))
+
+
+def _setup(results: list[RecordingResult]) -> str:
+    header, rows, same = setup_rows(results)
+    return (table(header, rows, [True] * len(rows)) if rows else "") + (f"<p>The same in all: {html.escape(same)}</p>"
+                                                                        if same else "")
 
 
 def _runs(runs: list[RunInfo] | None) -> str:
