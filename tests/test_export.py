@@ -283,3 +283,21 @@ def test_the_error_is_nan_only_where_an_undetermined_parameter_enters(small_reco
     assert [math.isnan(port.sigma(z, uu, vv)[1]) for z, uu, vv in zip((0.7, 1.6, 0.7, 1.6), u, (0.0, 17.0, 5.0, 9.0))] \
         == [False, False, True, True]
 
+
+@pytest.mark.parametrize("spec", MODELS)
+def test_each_parameter_has_one_unit_in_the_export_and_in_rig_result(small_recording, spec):
+    """The same unit in rig.noise-model/1 and rig.result/1 (docs/json.md: "1" for a pure number, lambda's), and every
+    term's stage the step docs/noise-model.md ("Conventions") names for it."""
+    from rig.reports.result_json import fit_json
+
+    d = _data(small_recording)
+    model = parse_model(spec)
+    fit = _fit_with(model, d, seed=1)
+    with Recording(small_recording) as rec:
+        doc = noise_model_document(fit, d, rec, small_recording)
+    units = {p["name"]: p["unit"] for p in doc["parameters"]}
+    assert units == fit_json(fit)["units"] and units["lambda"] == "1" and "" not in units.values()
+    documented = {"slant_range": 10, "incidence": 10, "read_noise": 20, "ambient": 20, "noise_floor": 30, "drift": 40,
+                  "censoring": 50, "quantization": 60, "outliers": 70, "empirical(tails)": 80}
+    for t in doc["sigma_terms"] + doc["after_sigma"]:
+        assert t["stage"] == documented.get(t["effect"], 45 if t in doc["sigma_terms"] else 80), t["effect"]
