@@ -8,6 +8,7 @@ docs/noise-model.schema.json by jsonschema, the reference validator, not by code
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import shutil
@@ -20,7 +21,7 @@ import jsonschema
 import numpy as np
 import pytest
 from cli_in_process import rig_in_process
-from noise_model_port import PortedModel, rounding_bound
+from noise_model_port import PortedModel, rounding_bound, se_bound
 from protocols.recording import Recording
 
 from rig.models import load_samples, parse_model
@@ -222,6 +223,94 @@ def test_the_docs_example_runs_as_written(small_recording, tmp_path, monkeypatch
         assert lines[1] == "[False False False]"  # this recording is 32 px wide: the example's pixels lie outside it
 
 
+def _read_vectors(path: Path) -> dict[str, np.ndarray]:
+    """The CSV as docs/noise-model.md describes it, read with the csv module: a header row, then numbers."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+
+
+def _port_agrees(doc: dict, vectors: dict[str, np.ndarray]) -> int:
+    """Every row of the vectors against the port written from the docs alone (tests/noise_model_port.py): sigma within
+    two implementations' rounding (`rounding_bound`), the standard error within what that rounding does to the
+    differences over the same steps (`se_bound`), NaN exactly where the vectors have NaN. Returns the rows checked."""
+    port, evaluator = PortedModel(doc), NoiseModel.from_dict(doc)
+    names = ["z_m", "u_px", "v_px", *evaluator.inputs]
+    assert list(vectors) == [*names, "sigma_m", "sigma_se_m"]
+    bound = rounding_bound(evaluator, vectors["z_m"], vectors["u_px"], vectors["v_px"],
+                           {n: vectors[n] for n in evaluator.inputs})
+    for i in range(len(vectors["z_m"])):
+        z, u, v, *rest = (float(vectors[n][i]) for n in names)
+        var, sigma, g = port.gradient(z, u, v, dict(zip(evaluator.inputs, rest)))
+        se = port.standard_error(g)
+        assert abs(sigma - vectors["sigma_m"][i]) <= bound[i] * sigma, (i, sigma, vectors["sigma_m"][i])
+        if math.isnan(se):
+            assert math.isnan(vectors["sigma_se_m"][i]), i
+        else:
+            assert abs(se - vectors["sigma_se_m"][i]) <= se_bound(port, bound[i], var, sigma, g), \
+                (i, se, vectors["sigma_se_m"][i])
+    return len(vectors["z_m"])
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("spec", MODELS)
+def test_a_port_written_from_the_docs_alone_reproduces_the_test_vectors(small_recording, tmp_path, spec):
+    """Every term of sigma, through the vectors file: inputs over and beyond the fitted region (shapes' flat ends,
+    the incidence clip, an ambient ratio not measured)."""
+    from rig.reports.port_vectors import ROWS, write_vectors
+
+    d = _data(small_recording)
+    model = parse_model(spec)
+    with Recording(small_recording) as rec:
+        doc = json.loads(json.dumps(noise_model_document(_fit_with(model, d, seed=len(spec)), d, rec, small_recording)))
+    vectors = _read_vectors(write_vectors(NoiseModel.from_dict(doc), tmp_path / "v.csv"))
+    assert _port_agrees(doc, vectors) == ROWS
+    z = vectors["z_m"]
+    assert z.min() < doc["valid"]["z_m"][0] and z.max() > doc["valid"]["z_m"][1]  # past the fitted ranges
+    if "cos_incidence" in vectors:
+        assert vectors["cos_incidence"].min() < 0.05  # the clip
+    if "ambient_ratio" in vectors:
+        assert np.isnan(vectors["ambient_ratio"]).any() and np.isfinite(vectors["ambient_ratio"]).any()
+
+
+@pytest.mark.numeric
+def test_rig_export_writes_test_vectors_and_a_float32_tiff_sigma_map(small_recording, tmp_path):
+    """The vectors from the command, checked by the port; the TIFF read back by tifffile (values, dtype, metadata)
+    and, as a reader that is not the writer, by Pillow."""
+    import tifffile
+    from PIL import Image
+
+    out = tmp_path / "cam.json"
+    r = rig_in_process("export", small_recording, "--model", "active+slant_range+noise_floor", "-o", out,
+                       "--sigma-map", "0.5,1,2", "--test-vectors", "-q")
+    assert r.returncode == 0, r.stderr
+    assert f"test vectors: {tmp_path / 'cam.test-vectors.csv'} (256 rows)" in r.stdout
+    doc = json.loads(out.read_text())
+    assert _port_agrees(doc, _read_vectors(tmp_path / "cam.test-vectors.csv")) == 256
+    maps = np.load(tmp_path / "cam.sigma-map.npy")
+    with tifffile.TiffFile(tmp_path / "cam.sigma-map.tif") as tif:
+        image, meta = tif.asarray(), tif.shaped_metadata[0]
+        assert len(tif.pages) == 3
+    assert image.dtype == np.float32 and image.shape == maps.shape
+    # float32 of the same doubles: round to nearest, within half an ulp, 2^-24 relatively (sigma is a normal float)
+    assert np.all(np.abs(image.astype(float) - maps) <= 2.0**-24 * maps)
+    np.testing.assert_array_equal(image, maps.astype(np.float32))
+    assert meta["unit"] == "m" and meta["model"] == "active+slant_range+noise_floor" and meta["z_m"] == [0.5, 1.0, 2.0]
+    assert meta["camera"]["intrinsics"] == doc["camera"]["intrinsics"]
+    assert meta["camera"]["fb_px_m"] == doc["camera"]["fb_px_m"] and meta["noise_model_file"] == str(out)
+    with Image.open(tmp_path / "cam.sigma-map.tif") as im:
+        assert im.mode == "F" and im.n_frames == 3
+        for page in range(3):
+            im.seek(page)
+            np.testing.assert_array_equal(np.array(im), image[page])
+    # the pages against the port, pixel by pixel at 1 m (a wall perpendicular to the axis: no incidence input here)
+    port, bound = PortedModel(doc), 2.0**-24
+    v, u = np.mgrid[0:image.shape[1], 0:image.shape[2]]
+    exact = np.array([[port.sigma_m(1.0, float(uu), float(vv)) for uu, vv in zip(ur, vr)] for ur, vr in zip(u, v)])
+    gap = rounding_bound(NoiseModel.from_dict(doc), np.full(u.shape, 1.0), u, v, {}) + bound
+    assert np.all(np.abs(image[1] - exact) <= gap * exact)
+
+
 @pytest.fixture(scope="module")
 def undetermined(tmp_path_factory) -> dict[str, Path]:
     """Recordings of the simulator that leave parameters undetermined: 8 px wide at four ranges, where censoring's
@@ -239,7 +328,7 @@ def undetermined(tmp_path_factory) -> dict[str, Path]:
 @pytest.mark.parametrize("spec", ["active+slant_range+censoring", "active+empirical(position)"])
 def test_an_undetermined_parameter_has_null_variances_and_sigma_a_nan_error(undetermined, tmp_path, spec):
     out = tmp_path / "cam.json"
-    r = rig_in_process("export", undetermined[spec], "--model", spec, "-o", out, "-q")
+    r = rig_in_process("export", undetermined[spec], "--model", spec, "-o", out, "--test-vectors", "-q")
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
     jsonschema.validate(doc, SCHEMA)
@@ -255,7 +344,8 @@ def test_an_undetermined_parameter_has_null_variances_and_sigma_a_nan_error(unde
     assert any("do not determine k" in n for n in doc["notes"])
     sigma, se = NoiseModel.load(out).sigma(np.array([0.5, 1.0, 2.0]), np.array([0.0, 1.5, 3.0]), 1.0, with_error=True)
     assert np.all(np.isfinite(sigma) & (sigma > 0)) and np.all(np.isnan(se))  # k enters everywhere
-    assert all(math.isnan(PortedModel(doc).sigma(z, u, 1.0)[1]) for z, u in ((0.5, 0.0), (2.0, 3.0)))
+    vectors = _read_vectors(tmp_path / "cam.test-vectors.csv")
+    assert np.all(np.isnan(vectors["sigma_se_m"])) and _port_agrees(doc, vectors) == 256
 
 
 def test_the_error_is_nan_only_where_an_undetermined_parameter_enters(small_recording):

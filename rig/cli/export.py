@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", help="the model to fit and export (default: the paper's power law, as rig fit)")
     p.add_argument("-o", "--out", help="the model file to write (default: RECORDING-noise-model.json)")
     p.add_argument("--sigma-map", metavar="Z1,Z2,...", help="also write per-pixel sigma images at these ranges (m): "
-                                                            "OUT.sigma-map.npy and OUT.sigma-map.png")
+                                                            "OUT.sigma-map.npy, .tif (float32) and .png")
+    p.add_argument("--test-vectors", action="store_true", help="also write OUT.test-vectors.csv: inputs and the sigma "
+                                                               "and standard error there, for a port to check itself")
     p.set_defaults(func=cmd_export)
 
 
@@ -75,6 +77,11 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"model: {out} ({doc['model']}; sigma valid for Z {doc['valid']['z_m'][0]:.3f}-{doc['valid']['z_m'][1]:.3f} m, "
           f"headline error there {h.error_pct:.2f} %)", file=stream)
     if ranges is not None:
-        npy, png = write_sigma_maps(NoiseModel.from_dict(doc, str(out)), ranges, out.with_name(out.stem + ".sigma-map"))
-        print(f"sigma maps: {npy} and {png}", file=stream)
+        written = write_sigma_maps(NoiseModel.from_dict(doc, str(out)), ranges, out.with_name(out.stem + ".sigma-map"))
+        print(f"sigma maps: {', '.join(map(str, written))}", file=stream)
+    if args.test_vectors:
+        from ..reports.port_vectors import ROWS, write_vectors
+
+        vectors = write_vectors(NoiseModel.from_dict(doc, str(out)), out.with_name(out.stem + ".test-vectors.csv"))
+        print(f"test vectors: {vectors} ({ROWS} rows)", file=stream)
     return 0
