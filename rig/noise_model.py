@@ -91,17 +91,23 @@ class NoiseModel:
     def sigma(self, z_m: Any, u_px: Any, v_px: Any, *, with_error: bool = False,
               **inputs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """sigma of a depth sample, m, at true range z_m and pixel (u_px, v_px); with `with_error`, also its standard
-        error (the delta method: sqrt(g' C g), g the derivative over the free parameters, C their covariance)."""
+        error (the delta method: sqrt(g' C g), g the derivative over the free parameters, C their covariance), NaN
+        wherever a parameter the data do not determine (`error` null) enters sigma."""
         var = self.variance(z_m, u_px, v_px, **inputs)
         sigma = np.sqrt(var)
         if not with_error:
             return sigma
         cov = self.doc["covariance"]
-        names, c = cov["parameters"], np.array(cov["matrix"], dtype=float).reshape(len(cov["parameters"]), -1)
+        names = cov["parameters"]
+        c = np.array([[np.nan if x is None else x for x in row] for row in cov["matrix"]], dtype=float)
+        c = c.reshape(len(names), len(names))  # null (NaN): the row and column of an undetermined parameter
         values = self.values
+        errors = {p["name"]: p["error"] for p in self.doc["parameters"]}
+        determined = np.array([errors.get(n) is not None and np.isfinite(c[i, i]) and c[i, i] > 0
+                               for i, n in enumerate(names)], dtype=bool)
         grads = []
         for i, name in enumerate(names):
-            h = 1e-4 * math.sqrt(c[i, i]) if c[i, i] > 0 else 1e-7 * max(abs(values[name]), 1e-12)
+            h = 1e-4 * errors[name] if determined[i] else 1e-7 * max(abs(values[name]), 1e-12)
             up, down = dict(values), dict(values)
             up[name] += h
             down[name] -= h
@@ -111,8 +117,10 @@ class NoiseModel:
         if not grads:
             return sigma, np.zeros_like(sigma)
         g = np.stack(grads)
-        se = np.sqrt(np.maximum(np.einsum("i...,ij,j...->...", g, c, g), 0.0))
-        return sigma, se
+        known = np.where(np.outer(determined, determined), c, 0.0)
+        se = np.sqrt(np.maximum(np.einsum("i...,ij,j...->...", g, known, g), 0.0))
+        enters = np.any(g[~determined] != 0, axis=0) if not determined.all() else np.zeros(se.shape, dtype=bool)
+        return sigma, np.where(enters, np.nan, se)
 
     def variance(self, z_m: Any, u_px: Any, v_px: Any, *, values: dict[str, float] | None = None,
                  **inputs: Any) -> np.ndarray:

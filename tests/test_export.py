@@ -8,17 +8,20 @@ docs/noise-model.schema.json by jsonschema, the reference validator, not by code
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import jsonschema
 import numpy as np
 import pytest
 from cli_in_process import rig_in_process
+from noise_model_port import PortedModel, rounding_bound, se_bound
 from protocols.recording import Recording
 
 from rig.models import load_samples, parse_model
@@ -67,52 +70,8 @@ def _fit_with(model, d, seed: int) -> ModelFit:
     values["k"] *= 1.1
     names = [n for n, _ in model.free()]
     a = rng.normal(size=(len(names), len(names))) * 1e-3
-    return ModelFit(model, values, {n: 1e-3 for n in names}, 0.0, len(d), int(d.n.sum()), covariance=a @ a.T + 1e-9 * np.eye(len(names)))
-
-
-def _rounding_bound(evaluator: NoiseModel, d, inputs: dict[str, np.ndarray]) -> np.ndarray:
-    """How far rig's sigma and the evaluator's may be apart, relatively, row by row. The two compute each term of
-    the variance by the same formula in their own order, so each is held to the rounding of its operations, twice.
-    u = eps / 2 is a correctly rounded operation's relative error; exp and log are within 1 ulp (2 u).
-
-    - the shot noise k^2 exp(2 lambda ln z): ln z's ulp and two products make an error of 4 u |2 lambda ln z| in the
-      exponent, which exp turns into a relative one, plus its own ulp and k^2's rounding;
-    - every other physical factor and term is positive (1 + rho^2, 1 / cos, r z^2, ambient, (z^2 / fb)^2 s^2, drift):
-      at most 40 roundings in all, each u relatively;
-    - an empirical shape multiplies by exp(2 g), g a cubic Hermite curve within 85 u S of another implementation of
-      it (tests/test_models.py; S the size of its terms on an interval, here the largest over the knots), doubled in
-      the exponent; the image shape's exponent 2 (a_x x + ... + a_yy y^2) has each term within 8 u;
-    - censoring multiplies by F = 1 - A, A = 2 c phi(c) / erf(c / sqrt 2), c = T / sigma_d: A's relative error is
-      |d ln A / d ln c| = |1 - c^2 - A| times c's (half the variance's before it, and 4 roundings) plus 6 u, and F's
-      is A / F times A's: the cancellation where few samples are cut.
-    sigma is the root: half the variance's error, and a rounding each."""
-    u = np.finfo(np.float64).eps / 2
-    p, cam = evaluator.values, evaluator.doc["camera"]
-    z = np.asarray(d.z_m, dtype=float)
-    each = 4 * np.abs(2 * p["lambda"] * np.log(z)) + 4 + 40  # one implementation's variance, in u, before the shapes
-    k = cam["intrinsics"]
-    x, y = (np.asarray(d.u_px, float) - k["cx"]) / k["fx"], (np.asarray(d.v_px, float) - k["cy"]) / k["fy"]
-    terms = evaluator.doc["sigma_terms"]
-    for t in terms:
-        name = t["effect"]
-        if name == "empirical(position)":
-            q = {n: p[f"empirical(position).{n}"] for n in ("a_x", "a_y", "a_xx", "a_xy", "a_yy")}
-            size = (np.abs(q["a_x"] * x) + np.abs(q["a_y"] * y) + np.abs(q["a_xx"] * x * x) + np.abs(q["a_xy"] * x * y)
-                    + np.abs(q["a_yy"] * y * y))
-            each = each + 2 * 8 * size + 4
-        elif name.startswith("empirical("):
-            g = np.abs([0.0 if n is None else p[n] for n in t["knot_parameters"]])
-            slopes, h = np.abs(t["slopes"]), np.diff(t["knots_axis"])
-            size = np.max(g[:-1] + g[1:] + h * (slopes[:-1] + slopes[1:])) if len(g) > 1 else np.max(g)
-            each = each + 85 * size + 4  # this implementation's half of 85 u S, doubled by exp(2 g), and exp's ulp
-    if "censoring" in [t["effect"] for t in terms]:
-        kept = [t for t in terms if t["effect"] != "censoring"]
-        uncensored = NoiseModel.from_dict({**evaluator.doc, "sigma_terms": kept})
-        var = uncensored.variance(d.z_m, d.u_px, d.v_px, **{n: inputs[n] for n in uncensored.inputs})
-        c = p["censoring.threshold_px"] / (np.sqrt(var) * cam["fb_px_m"] / z**2)
-        a = 2 * c * np.exp(-0.5 * c * c) / math.sqrt(2 * math.pi) / np.array([math.erf(v / math.sqrt(2)) for v in c])
-        each = each + a / (1 - a) * (np.abs(1 - c * c - a) * (each / 2 + 4) + 6) + 1
-    return u * (each + 2)  # two implementations' variances, each within `each`: sigma's half of both, and the roots
+    cov = a @ a.T + 1e-9 * np.eye(len(names))
+    return ModelFit(model, values, dict(zip(names, np.sqrt(np.diag(cov)))), 0.0, len(d), int(d.n.sum()), covariance=cov)
 
 
 def _inputs(evaluator: NoiseModel, d) -> dict[str, np.ndarray]:
@@ -135,12 +94,13 @@ def test_the_evaluator_gives_rigs_sigma_and_its_error_on_every_pixel_stop(small_
     pred = model.predict_noise(fit.values, d, t)
     sigma, se = evaluator.sigma(d.z_m, d.u_px, d.v_px, with_error=True, **_inputs(evaluator, d))
     assert len(d) > 500
-    bound = _rounding_bound(evaluator, d, _inputs(evaluator, d))  # 1.6e-14 to 5.2e-14 here (was 1e-9; 6 u seen)
+    # 1.6e-14 to 5.2e-14 here (was 1e-9; 6 u seen)
+    bound = rounding_bound(evaluator, d.z_m, d.u_px, d.v_px, _inputs(evaluator, d))
     gap = np.abs(sigma - np.sqrt(pred.var_m2)) / sigma
     assert np.all(gap <= bound), np.max(gap / bound)
     g = t.var / (2.0 * np.sqrt(pred.var_m2))  # d sigma / d theta, analytic
     se_rig = np.sqrt(np.einsum("in,ij,jn->n", g, fit.covariance, g))
-    # the evaluator differences its own variance over +-h, h = 1e-4 of each parameter's standard deviation: the
+    # the evaluator differences its own variance over +-h, h = 1e-4 of each parameter's standard error: the
     # truncation, h^2 f''' / 6 f', and the rounding, u f / (h f'), are both far below 1e-5 (5e-8 seen): an
     # approximation's tolerance, not the floating point's
     np.testing.assert_allclose(se, se_rig, rtol=1e-5)
@@ -171,7 +131,7 @@ def test_rig_export_writes_a_valid_file_whose_sigma_is_the_fits_own(small_record
     values = {p["name"]: p["value"] for p in doc["parameters"]}
     evaluator = NoiseModel.load(out)
     sigma, rigs = evaluator.sigma(d.z_m, d.u_px, d.v_px), np.sqrt(model.predict_noise(values, d).var_m2)
-    assert np.all(np.abs(sigma - rigs) <= _rounding_bound(evaluator, d, {}) * sigma)
+    assert np.all(np.abs(sigma - rigs) <= rounding_bound(evaluator, d.z_m, d.u_px, d.v_px, {}) * sigma)
     # the errors the file gives are the fit's own
     errors = {p["name"]: p["error"] for p in doc["parameters"] if p["free"]}
     c = np.array(doc["covariance"]["matrix"])
@@ -261,3 +221,173 @@ def test_the_docs_example_runs_as_written(small_recording, tmp_path, monkeypatch
     if doc == "noise-model.md":
         assert "mm +/-" in lines[0] and lines[2] == "()"
         assert lines[1] == "[False False False]"  # this recording is 32 px wide: the example's pixels lie outside it
+
+
+def _read_vectors(path: Path) -> dict[str, np.ndarray]:
+    """The CSV as docs/noise-model.md describes it, read with the csv module: a header row, then numbers."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    return {name: np.array([float(r[i]) for r in rows[1:]]) for i, name in enumerate(rows[0])}
+
+
+def _port_agrees(doc: dict, vectors: dict[str, np.ndarray]) -> int:
+    """Every row of the vectors against the port written from the docs alone (tests/noise_model_port.py): sigma within
+    two implementations' rounding (`rounding_bound`), the standard error within what that rounding does to the
+    differences over the same steps (`se_bound`), NaN exactly where the vectors have NaN. Returns the rows checked."""
+    port, evaluator = PortedModel(doc), NoiseModel.from_dict(doc)
+    names = ["z_m", "u_px", "v_px", *evaluator.inputs]
+    assert list(vectors) == [*names, "sigma_m", "sigma_se_m"]
+    bound = rounding_bound(evaluator, vectors["z_m"], vectors["u_px"], vectors["v_px"],
+                           {n: vectors[n] for n in evaluator.inputs})
+    for i in range(len(vectors["z_m"])):
+        z, u, v, *rest = (float(vectors[n][i]) for n in names)
+        var, sigma, g = port.gradient(z, u, v, dict(zip(evaluator.inputs, rest)))
+        se = port.standard_error(g)
+        assert abs(sigma - vectors["sigma_m"][i]) <= bound[i] * sigma, (i, sigma, vectors["sigma_m"][i])
+        if math.isnan(se):
+            assert math.isnan(vectors["sigma_se_m"][i]), i
+        else:
+            assert abs(se - vectors["sigma_se_m"][i]) <= se_bound(port, bound[i], var, sigma, g), \
+                (i, se, vectors["sigma_se_m"][i])
+    return len(vectors["z_m"])
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("spec", MODELS)
+def test_a_port_written_from_the_docs_alone_reproduces_the_test_vectors(small_recording, tmp_path, spec):
+    """Every term of sigma, through the vectors file: inputs over and beyond the fitted region (shapes' flat ends,
+    the incidence clip, an ambient ratio not measured)."""
+    from rig.reports.port_vectors import ROWS, write_vectors
+
+    d = _data(small_recording)
+    model = parse_model(spec)
+    with Recording(small_recording) as rec:
+        doc = json.loads(json.dumps(noise_model_document(_fit_with(model, d, seed=len(spec)), d, rec, small_recording)))
+    vectors = _read_vectors(write_vectors(NoiseModel.from_dict(doc), tmp_path / "v.csv"))
+    assert _port_agrees(doc, vectors) == ROWS
+    z = vectors["z_m"]
+    assert z.min() < doc["valid"]["z_m"][0] and z.max() > doc["valid"]["z_m"][1]  # past the fitted ranges
+    if "cos_incidence" in vectors:
+        assert vectors["cos_incidence"].min() < 0.05  # the clip
+    if "ambient_ratio" in vectors:
+        assert np.isnan(vectors["ambient_ratio"]).any() and np.isfinite(vectors["ambient_ratio"]).any()
+
+
+@pytest.mark.numeric
+def test_rig_export_writes_test_vectors_and_a_float32_tiff_sigma_map(small_recording, tmp_path):
+    """The vectors from the command, checked by the port; the TIFF read back by tifffile (values, dtype, metadata)
+    and, as a reader that is not the writer, by Pillow."""
+    import tifffile
+    from PIL import Image
+
+    out = tmp_path / "cam.json"
+    r = rig_in_process("export", small_recording, "--model", "active+slant_range+noise_floor", "-o", out,
+                       "--sigma-map", "0.5,1,2", "--test-vectors", "-q")
+    assert r.returncode == 0, r.stderr
+    assert f"test vectors: {tmp_path / 'cam.test-vectors.csv'} (256 rows)" in r.stdout
+    doc = json.loads(out.read_text())
+    assert _port_agrees(doc, _read_vectors(tmp_path / "cam.test-vectors.csv")) == 256
+    maps = np.load(tmp_path / "cam.sigma-map.npy")
+    with tifffile.TiffFile(tmp_path / "cam.sigma-map.tif") as tif:
+        image, meta = tif.asarray(), tif.shaped_metadata[0]
+        assert len(tif.pages) == 3
+    assert image.dtype == np.float32 and image.shape == maps.shape
+    # float32 of the same doubles: round to nearest, within half an ulp, 2^-24 relatively (sigma is a normal float)
+    assert np.all(np.abs(image.astype(float) - maps) <= 2.0**-24 * maps)
+    np.testing.assert_array_equal(image, maps.astype(np.float32))
+    assert meta["unit"] == "m" and meta["model"] == "active+slant_range+noise_floor" and meta["z_m"] == [0.5, 1.0, 2.0]
+    assert meta["camera"]["intrinsics"] == doc["camera"]["intrinsics"]
+    assert meta["camera"]["fb_px_m"] == doc["camera"]["fb_px_m"] and meta["noise_model_file"] == str(out)
+    with Image.open(tmp_path / "cam.sigma-map.tif") as im:
+        assert im.mode == "F" and im.n_frames == 3
+        for page in range(3):
+            im.seek(page)
+            np.testing.assert_array_equal(np.array(im), image[page])
+    # the pages against the port, pixel by pixel at 1 m (a wall perpendicular to the axis: no incidence input here)
+    port, bound = PortedModel(doc), 2.0**-24
+    v, u = np.mgrid[0:image.shape[1], 0:image.shape[2]]
+    exact = np.array([[port.sigma_m(1.0, float(uu), float(vv)) for uu, vv in zip(ur, vr)] for ur, vr in zip(u, v)])
+    gap = rounding_bound(NoiseModel.from_dict(doc), np.full(u.shape, 1.0), u, v, {}) + bound
+    assert np.all(np.abs(image[1] - exact) <= gap * exact)
+
+
+@pytest.fixture(scope="module")
+def undetermined(tmp_path_factory) -> dict[str, Path]:
+    """Recordings of the simulator that leave parameters undetermined: 8 px wide at four ranges, where censoring's
+    cut sits on its bound (no covariance at all), and 4 x 2 px at two ranges, where y^2 takes one value and
+    empirical(position)'s a_yy trades off with k (their variances come out negative)."""
+    from simrig import record_perpendicular
+
+    folder = tmp_path_factory.mktemp("undetermined-export")
+    return {"active+slant_range+censoring": record_perpendicular(folder / "narrow.h5", width=8, frames=8,
+                                                                  stops_m=[0.5, 1.0, 1.5, 2.0])[0],
+            "active+empirical(position)": record_perpendicular(folder / "tiny.h5", width=4, frames=8,
+                                                                stops_m=[0.5, 1.0])[0]}
+
+
+@pytest.mark.parametrize("spec", ["active+slant_range+censoring", "active+empirical(position)"])
+def test_an_undetermined_parameter_has_null_variances_and_sigma_a_nan_error(undetermined, tmp_path, spec):
+    out = tmp_path / "cam.json"
+    r = rig_in_process("export", undetermined[spec], "--model", spec, "-o", out, "--test-vectors", "-q")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, SCHEMA)
+    errors = {p["name"]: p["error"] for p in doc["parameters"] if p["free"]}
+    names = doc["covariance"]["parameters"]
+    c = np.array(doc["covariance"]["matrix"], dtype=float)  # null -> NaN
+    assert "k" in [n for n, e in errors.items() if e is None]
+    for i, n in enumerate(names):
+        if errors[n] is None:  # undetermined: null in its row and column, nothing negative
+            assert np.all(np.isnan(c[i])) and np.all(np.isnan(c[:, i]))
+        else:
+            assert c[i, i] > 0 and errors[n] == pytest.approx(math.sqrt(c[i, i]), rel=2 * np.finfo(float).eps)
+    assert any("do not determine k" in n for n in doc["notes"])
+    sigma, se = NoiseModel.load(out).sigma(np.array([0.5, 1.0, 2.0]), np.array([0.0, 1.5, 3.0]), 1.0, with_error=True)
+    assert np.all(np.isfinite(sigma) & (sigma > 0)) and np.all(np.isnan(se))  # k enters everywhere
+    vectors = _read_vectors(tmp_path / "cam.test-vectors.csv")
+    assert np.all(np.isnan(vectors["sigma_se_m"])) and _port_agrees(doc, vectors) == 256
+
+
+def test_the_error_is_nan_only_where_an_undetermined_parameter_enters(small_recording):
+    """A fit whose a_x came out with a negative variance (a flat direction): the file nulls its row and column, and
+    sigma's error is NaN off the centre column and finite on it, where x = 0 and a_x does not enter."""
+    d = _data(small_recording)
+    model = parse_model("active+empirical(position)")
+    fit = model.fit(d)
+    names = [n for n, _ in model.free()]
+    cov = np.array(fit.covariance)
+    i = names.index("empirical(position).a_x")
+    cov[i, i] = -4.2e7
+    errors = {**fit.errors, "empirical(position).a_x": math.nan}
+    with Recording(small_recording) as rec:
+        doc = json.loads(json.dumps(noise_model_document(replace(fit, covariance=cov, errors=errors), d, rec,
+                                                         small_recording)))
+    assert doc["covariance"]["matrix"][i] == [None] * len(names)
+    assert all(row[i] is None for row in doc["covariance"]["matrix"])
+    cx = doc["camera"]["intrinsics"]["cx"]
+    u = np.array([cx, cx, 0.0, 2 * cx])
+    sigma, se = NoiseModel.from_dict(doc).sigma(np.array([0.7, 1.6, 0.7, 1.6]), u, np.array([0.0, 17.0, 5.0, 9.0]),
+                                                with_error=True)
+    assert np.all(np.isfinite(se[:2]) & (se[:2] > 0)) and np.all(np.isnan(se[2:]))
+    port = PortedModel(doc)
+    assert [math.isnan(port.sigma(z, uu, vv)[1]) for z, uu, vv in zip((0.7, 1.6, 0.7, 1.6), u, (0.0, 17.0, 5.0, 9.0))] \
+        == [False, False, True, True]
+
+
+@pytest.mark.parametrize("spec", MODELS)
+def test_each_parameter_has_one_unit_in_the_export_and_in_rig_result(small_recording, spec):
+    """The same unit in rig.noise-model/1 and rig.result/1 (docs/json.md: "1" for a pure number, lambda's), and every
+    term's stage the step docs/noise-model.md ("Conventions") names for it."""
+    from rig.reports.result_json import fit_json
+
+    d = _data(small_recording)
+    model = parse_model(spec)
+    fit = _fit_with(model, d, seed=1)
+    with Recording(small_recording) as rec:
+        doc = noise_model_document(fit, d, rec, small_recording)
+    units = {p["name"]: p["unit"] for p in doc["parameters"]}
+    assert units == fit_json(fit)["units"] and units["lambda"] == "1" and "" not in units.values()
+    documented = {"slant_range": 10, "incidence": 10, "read_noise": 20, "ambient": 20, "noise_floor": 30, "drift": 40,
+                  "censoring": 50, "quantization": 60, "outliers": 70, "empirical(tails)": 80}
+    for t in doc["sigma_terms"] + doc["after_sigma"]:
+        assert t["stage"] == documented.get(t["effect"], 45 if t in doc["sigma_terms"] else 80), t["effect"]

@@ -53,6 +53,7 @@ LAZY = {
     "distributed": "the optional cluster extra", "depthai": "an optional SDK", "pyrealsense2": "an optional SDK",
     "rosbags.highlevel": "161 ms, bags only", "rosbags.typesys": "idem", "rosbags.interfaces": "idem",
     "rosbags.rosbag1": "59 ms, ROS 1 bags only", "PIL": "30 ms, PNG folders only", "serial.tools": "listing ports only",
+    "tifffile": "12 ms, sigma maps only",
     "numba": "drivers/compiled.py: 535 ms the drivers do not pay unless they compile",
     "importlib.metadata": "24 ms on every command, for a version string", "tomllib": "a source tree's version only",
 }

@@ -1,7 +1,7 @@
 """The `rig` command line: one parser builds every command.
 
 The commands live by what they do: `acquire` (demo, run, simulate, import), `analyse` (fit,
-compare, diagnose), `export`, `recordings` (repeatability; compare of several recordings) and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
+compare, diagnose), `export` (export, sigma-bag), `recordings` (repeatability; compare of several recordings) and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
 Each module's `register` adds its sub-commands; a new command goes into one of them (or a new
 module registered here) with its arguments and a `cmd_*` function.
 """

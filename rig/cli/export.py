@@ -1,4 +1,5 @@
-"""`rig export`: a fitted model as a file other programs evaluate (docs/noise-model.md)."""
+"""`rig export`: a fitted model as a file other programs evaluate; `rig sigma-bag`: a bag with its sigma images
+(docs/noise-model.md)."""
 
 from __future__ import annotations
 
@@ -19,8 +20,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", help="the model to fit and export (default: the paper's power law, as rig fit)")
     p.add_argument("-o", "--out", help="the model file to write (default: RECORDING-noise-model.json)")
     p.add_argument("--sigma-map", metavar="Z1,Z2,...", help="also write per-pixel sigma images at these ranges (m): "
-                                                            "OUT.sigma-map.npy and OUT.sigma-map.png")
+                                                            "OUT.sigma-map.npy, .tif (float32) and .png")
+    p.add_argument("--test-vectors", action="store_true", help="also write OUT.test-vectors.csv: inputs and the sigma "
+                                                               "and standard error there, for a port to check itself")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("sigma-bag", help="copy a recorded bag with a 32FC1 sigma image (m) beside each depth frame, "
+                                         "for a ROS pipeline to weight depth by (docs/noise-model.md)")
+    p.add_argument("model", metavar="NOISE_MODEL.json", help="the model file rig export wrote")
+    p.add_argument("bag", metavar="BAG",
+                   help="a RealSense .bag or a ROS 1/ROS 2 bag (.bag, .db3, .mcap, a ROS 2 bag folder)")
+    p.add_argument("-o", "--out", help="the bag to write, of the input's kind (default: BAG-sigma.bag for ROS 1, "
+                                       "the folder BAG-sigma for ROS 2)")
+    p.add_argument("--topic", help="the depth image topic, when the bag has several")
+    p.add_argument("--sigma-topic", help="the topic of the sigma images (default: the depth topic + /sigma)")
+    p.set_defaults(func=cmd_sigma_bag)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -75,6 +89,29 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"model: {out} ({doc['model']}; sigma valid for Z {doc['valid']['z_m'][0]:.3f}-{doc['valid']['z_m'][1]:.3f} m, "
           f"headline error there {h.error_pct:.2f} %)", file=stream)
     if ranges is not None:
-        npy, png = write_sigma_maps(NoiseModel.from_dict(doc, str(out)), ranges, out.with_name(out.stem + ".sigma-map"))
-        print(f"sigma maps: {npy} and {png}", file=stream)
+        written = write_sigma_maps(NoiseModel.from_dict(doc, str(out)), ranges, out.with_name(out.stem + ".sigma-map"))
+        print(f"sigma maps: {', '.join(map(str, written))}", file=stream)
+    if args.test_vectors:
+        from ..reports.port_vectors import ROWS, write_vectors
+
+        vectors = write_vectors(NoiseModel.from_dict(doc, str(out)), out.with_name(out.stem + ".test-vectors.csv"))
+        print(f"test vectors: {vectors} ({ROWS} rows)", file=stream)
+    return 0
+
+
+def cmd_sigma_bag(args: argparse.Namespace) -> int:
+    from ..noise_model import NoiseModel, NoiseModelError
+    from ..reports.sigma_bag import SigmaBagError, default_output, write_sigma_bag
+
+    bag = Path(args.bag)
+    out = Path(args.out) if args.out else default_output(bag)
+    refuse_unwritable(out, "--out", folder=not out.suffix == ".bag")
+    try:
+        model = NoiseModel.load(args.model)
+        written = write_sigma_bag(model, bag, out, topic=args.topic, sigma_topic=args.sigma_topic)
+    except (NoiseModelError, SigmaBagError) as e:
+        raise UsageError(str(e)) from None
+    print(f"sigma bag: {written.path} ({written.frames} frames of {written.depth_topic} with their sigma on "
+          f"{written.sigma_topic}: {model.doc['model']}, 32FC1, m; depth unit {written.depth_unit_m:g} m; "
+          "every other topic copied)")
     return 0

@@ -21,7 +21,7 @@ class Base(BaseModel):
         self.doc = doc
         self.params = (  # type: ignore[misc]
             Param("k", 0.002, 1e-9, 10.0, "m^(1-lambda)", "scale of the range error"),
-            Param("lambda", 3.0 if lam is None else lam, -2.0, 8.0, "", "exponent of range", vary=lam is None),
+            Param("lambda", 3.0 if lam is None else lam, -2.0, 8.0, "1", "exponent of range", vary=lam is None),
         )
 
     def shot(self, p: dict[str, float], d: ModelData) -> np.ndarray:

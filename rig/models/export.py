@@ -85,12 +85,28 @@ def _term(effect: Any, values: dict[str, float]) -> dict[str, Any]:
     return out
 
 
+def _determined_covariance(fit: ModelFit, names: list[str]) -> np.ndarray:
+    """The free parameters' covariance, with NaN (null in the file) in the row and column of each parameter the data
+    do not determine: one without an error, or whose variance is not positive (the inverse of a Hessian that is not
+    negative definite: along a flat or wrong-signed direction its entries are no covariance)."""
+    if fit.covariance is None:
+        return np.full((len(names), len(names)), np.nan)
+    cov = np.array(fit.covariance, dtype=float)
+    diag = np.diag(cov)
+    errors = np.array([fit.errors.get(n, np.nan) for n in names], dtype=float)
+    undetermined = ~(np.isfinite(diag) & (diag > 0) & np.isfinite(errors))
+    cov[undetermined, :] = np.nan
+    cov[:, undetermined] = np.nan
+    return cov
+
+
 def noise_model_document(fit: ModelFit, d: ModelData, recording: Any, recording_path: str | Path,
                          headline: Any = None, notes: list[str] | None = None) -> dict[str, Any]:
     """The `rig.noise-model/1` document of `fit` (made on `d`, from the open `recording` at `recording_path`)."""
     model = fit.model
     names = [n for n, _ in model.free()]
-    cov = fit.covariance if fit.covariance is not None else np.full((len(names), len(names)), np.nan)
+    cov = _determined_covariance(fit, names)
+    determined = {n for i, n in enumerate(names) if np.isfinite(cov[i, i])}
     sigma_terms = [_term(e, fit.values) for e in model.effects if e.stage <= EffectStage.CENSOR]
     after = [{"effect": e.name, "stage": int(e.stage), "parameters": [f"{e.name}.{p.name}" for p in e.params],
               "meaning": AFTER_SIGMA.get(e.name, "a user's effect; see its file")} for e in model.effects if e.stage > EffectStage.CENSOR]
@@ -101,6 +117,9 @@ def noise_model_document(fit: ModelFit, d: ModelData, recording: Any, recording_
     if "user" in kinds:
         users = ", ".join(f"{t['effect']} ({t['user_file'] or 'file not known'})" for t in sigma_terms if t["kind"] == "user")
         words.append(f"sigma includes user effects this file cannot carry ({users}): rig.noise_model refuses it")
+    if len(determined) < len(names):
+        words.append(f"the data do not determine {', '.join(n for n in names if n not in determined)} (error null): "
+                     "sigma's standard error is NaN wherever they enter sigma")
     u, v = d.u_px[np.isfinite(d.u_px)], d.v_px[np.isfinite(d.v_px)]
     doc = {
         "schema": SCHEMA, "rig_version": package_version(),
@@ -109,7 +128,8 @@ def noise_model_document(fit: ModelFit, d: ModelData, recording: Any, recording_
                       "started_utc": recording.attrs.get("started_utc")},
         "camera": _camera(recording, d), "settings": _settings(recording, d),
         "model": model.name, "likelihood": fit.likelihood,
-        "parameters": [{"name": n, "value": float(fit.values[n]), "error": _number(fit.errors.get(n)) if p.vary else 0.0,
+        "parameters": [{"name": n, "value": float(fit.values[n]),
+                        "error": (_number(fit.errors.get(n)) if n in determined else None) if p.vary else 0.0,
                         "unit": p.unit, "free": bool(p.vary), "meaning": p.doc} for n, p in model.parameters()],
         "covariance": {"parameters": names, "matrix": [[_number(x) for x in row] for row in np.asarray(cov)]},
         "sigma_terms": sigma_terms, "after_sigma": after,
