@@ -10,4 +10,11 @@ Z = f b / d, the projector's light falling as Z^-2); Intel RealSense D400 datash
 Improvement for D400" (f = 0.5 X_res / tan(HFOV/2), HFOV 90 deg) and "Tuning depth cameras for best performance";
 optics texts for the camera equation and the cosine-fourth law (Smith, "Modern Optical Engineering"); Newton's law
 of cooling for the warm-up. The physics of each step is in the module that computes it; README.md lists the scenes.
+
+    from fakes.outside import SCENES
+    folder = SCENES["gaussian_spot"](1, Path("scenes"))     # scenes/gaussian_spot-seed1/ + .answer.json
 """
+
+from .scenes import SCENES
+
+__all__ = ["SCENES"]
