@@ -130,13 +130,18 @@ def test_fit_compare_and_diagnose_work_on_an_import(live, tmp_path, capsys):
     assert (tmp_path / "diag").is_dir()
 
 
-def test_ir_images_are_averaged_not_taken_for_depth(live, tmp_path):
+@pytest.mark.parametrize("kind", ["png", "npy"])
+def test_ir_images_are_averaged_not_taken_for_depth(live, tmp_path, kind):
+    """8-bit IR keeps its full scale, 255: the samples there are counted as clipped (data-format.md,
+    `ir_saturated`). Before, the folder's frames were widened to uint16 first, and 255 was never clipped."""
     src = dump(live, tmp_path / "frames", frames=4)
     rng = np.random.default_rng(5)
     irs = {}
     for stop in sorted(p for p in src.iterdir() if p.is_dir()):
         irs[stop.name] = rng.integers(0, 256, (4, 18, 32), dtype=np.uint8)
-        for j, image in enumerate(irs[stop.name]):
+        if kind == "npy":
+            np.save(stop / "ir_stack.npy", irs[stop.name])
+        for j, image in enumerate(irs[stop.name] if kind == "png" else []):
             write_png(stop / f"ir_{j}.png", image)  # 8-bit: fine for IR, refused for depth
     out = import_folder(src, tmp_path / "imported.h5")
     with Recording(out) as rec:
@@ -144,7 +149,9 @@ def test_ir_images_are_averaged_not_taken_for_depth(live, tmp_path):
             assert s.n_frames == 4
             # the mean of whole numbers, rounded once in float64 and then to float32 as the file keeps it
             assert np.allclose(s.ir_mean, irs[s.label].mean(axis=0), rtol=2.0**-24 + 2.0**-52, atol=0)
-            assert len(json.loads(s.attrs["source_ir_files"])) == 4
+            assert len(json.loads(s.attrs["source_ir_files"])) == (4 if kind == "png" else 1)
+            assert s.ir_full_scale_dn == 255
+            assert np.array_equal(s.ir_saturated, (irs[s.label] == 255).sum(axis=0)) and s.ir_saturated.any()
 
 
 def test_frames_stream_from_disk(live, tmp_path):

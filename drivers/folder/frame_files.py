@@ -27,17 +27,21 @@ class FrameFile:
     kind: str  # "png" or "npy"
     n_frames: int
     shape: tuple[int, int]  # (height, width)
+    ir: bool = False  # IR images keep uint8: their full scale (255) is where they clip (data-format.md, ir_saturated)
 
     def frames(self) -> Iterator[np.ndarray]:
-        """The file's frames, one at a time, as uint16."""
+        """The file's frames, one at a time, as uint16 (IR images: uint8 or uint16, as stored)."""
         if self.kind == "png":
-            yield _decode_png(self.path, self.shape)
+            yield self._kept(_decode_png(self.path, self.shape), str(self.path))
             return
         stack = _open_npy(self.path)
         if stack.ndim == 2:
             stack = stack[np.newaxis]
         for i in range(len(stack)):
-            yield _as_uint16(np.array(stack[i]), f"{self.path} (frame {i})")
+            yield self._kept(np.array(stack[i]), f"{self.path} (frame {i})")
+
+    def _kept(self, a: np.ndarray, name: str) -> np.ndarray:
+        return a if self.ir and a.dtype in (np.uint8, np.uint16) else _as_uint16(a, name)
 
 
 def inspect_file(path: Path, *, ir: bool = False) -> FrameFile:
@@ -64,7 +68,7 @@ def _inspect_png(path: Path, *, ir: bool) -> FrameFile:
     if bit_depth != 16 and not (ir and bit_depth == 8):
         raise FolderImportError(f"{path}: {bit_depth}-bit grayscale PNG; {what} must be 16-bit"
                                 + ("" if ir else " (an 8-bit image has lost the depth); export the camera's 16-bit depth"))
-    return FrameFile(path, "png", 1, (height, width))
+    return FrameFile(path, "png", 1, (height, width), ir)
 
 
 def _inspect_npy(path: Path, *, ir: bool) -> FrameFile:
@@ -77,7 +81,7 @@ def _inspect_npy(path: Path, *, ir: bool) -> FrameFile:
     if a.ndim not in (2, 3):
         raise FolderImportError(f"{path}: array of shape {a.shape}; a .npy file holds one frame (H, W) or a stack (N, H, W)")
     n = 1 if a.ndim == 2 else a.shape[0]
-    return FrameFile(path, "npy", n, tuple(a.shape[-2:]))
+    return FrameFile(path, "npy", n, tuple(a.shape[-2:]), ir)
 
 
 def _open_npy(path: Path) -> np.ndarray:
@@ -99,7 +103,7 @@ def _decode_png(path: Path, shape: tuple[int, int]) -> np.ndarray:
         raise FolderImportError(f"{path}: unreadable PNG ({one_line(e)})") from None
     if a.shape != shape:
         raise FolderImportError(f"{path}: decodes to {a.shape[::-1]} px, its header says {shape[::-1]}; the file is damaged")
-    return _as_uint16(a, str(path))
+    return a
 
 
 def _as_uint16(a: np.ndarray, name: str) -> np.ndarray:
