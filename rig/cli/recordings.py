@@ -50,9 +50,8 @@ def expand(paths: list[str]) -> list[str]:
 
 def fit_each(args: argparse.Namespace, paths: list[str], what: str):
     """Every recording fitted with --model (rig.recordings.recording_fits), in input order, with progress on stderr."""
-    from ..fleet.executors import run_each
+    from ..fleet.many import fit_all_for_comparison
     from ..models.fitting.progress import ProgressCounter
-    from ..fleet.many import fit_for_comparison
     from ..recordings.recording_fits import FitJob
     from .shared import catalogue_of, parse_model_option, progress_line
 
@@ -65,7 +64,7 @@ def fit_each(args: argparse.Namespace, paths: list[str], what: str):
     with progress_line(args, what) as progress:
         counter = ProgressCounter(progress, len(jobs))
         try:
-            for r in run_each(fit_for_comparison, jobs, jobs=max(1, args.jobs), scheduler=args.scheduler):
+            for r in fit_all_for_comparison(jobs, max(1, args.jobs), args.scheduler):
                 done[r.path] = r
                 counter.step(f"fitted {len(done)} of {len(jobs)} recordings")
         except ValueError as e:
