@@ -65,17 +65,18 @@ def portable(path: str | Path) -> Path:
     return Path(path).absolute()
 
 
-def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None = None) -> Iterator[ManyRow]:
+def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None = None,
+             timeout_s: float | None = None) -> Iterator[ManyRow]:
     """Fit every recording, `jobs` at a time (default: one per core), or on the Dask cluster at `scheduler`
-    (`rig.fleet.executors`); rows come as recordings finish, each with its path as given."""
+    (`rig.fleet.executors`, with its `timeout_s`); rows come as recordings finish, each with its path as given."""
     given = {portable(p): Path(p) for p in paths}
-    for row in run_each(fit_one, list(given), jobs=jobs, scheduler=scheduler):
+    for row in run_each(fit_one, list(given), jobs=jobs, scheduler=scheduler, timeout_s=timeout_s):
         path = given[row.path]
         yield replace(row, path=path, document=row.document and {**row.document, "file": str(path)})
 
 
-def fit_all_for_comparison(jobs: list[FitJob], workers: int | None = None,
-                           scheduler: str | None = None) -> Iterator[RecordingResult]:
+def fit_all_for_comparison(jobs: list[FitJob], workers: int | None = None, scheduler: str | None = None,
+                           timeout_s: float | None = None) -> Iterator[RecordingResult]:
     """`fit_for_comparison` of every job, `workers` at a time or on the cluster at `scheduler` (`fit_many`), as they
     finish, each with its path as given; a recording given twice is fitted once (its first job) and reported twice."""
     sent: dict[str, FitJob] = {}
@@ -84,7 +85,7 @@ def fit_all_for_comparison(jobs: list[FitJob], workers: int | None = None,
         path = str(portable(job.path))
         sent.setdefault(path, replace(job, path=path))
         given.setdefault(path, []).append(job.path)
-    for r in run_each(fit_for_comparison, list(sent.values()), jobs=workers, scheduler=scheduler):
+    for r in run_each(fit_for_comparison, list(sent.values()), jobs=workers, scheduler=scheduler, timeout_s=timeout_s):
         for path in given[r.path]:
             yield replace(r, path=path)
 
