@@ -13,11 +13,22 @@ from .usage import UsageError
 
 
 def cluster_options() -> argparse.ArgumentParser:
-    """--scheduler: where the work over many recordings runs (fit --many, compare, repeatability)."""
+    """--scheduler and --timeout: where the work over many recordings runs (fit --many, compare, repeatability)."""
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--scheduler", metavar="tcp://HOST:8786",
                    help="run the fits on this Dask cluster (default: $RIG_SCHEDULER, else a local process pool of --jobs)")
+    p.add_argument("--timeout", type=float, metavar="SECONDS",
+                   help="on a cluster, stop with an error after this long with no worker there: none joined, or the "
+                        "last one was lost (default: 60)")
     return p
+
+
+def cluster_timeout(args: argparse.Namespace) -> float | None:
+    """--timeout, in seconds (None: the engine's default); one that is not a positive number is refused."""
+    timeout_s = getattr(args, "timeout", None)
+    if timeout_s is not None and not timeout_s > 0:
+        raise UsageError(f"--timeout {timeout_s:g}: give a positive number of seconds to wait for a worker (default: 60)")
+    return timeout_s
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,14 +60,14 @@ def expand(paths: list[str]) -> list[str]:
 
 def fit_each(args: argparse.Namespace, paths: list[str], what: str):
     """Every recording fitted with --model (rig.recordings.recording_fits), in input order, with progress on stderr."""
-    from ..fleet.executors import run_each
+    from ..fleet.many import fit_all_for_comparison
     from ..models.fitting.progress import ProgressCounter
-    from ..fleet.many import fit_for_comparison
     from ..recordings.recording_fits import FitJob
     from .shared import catalogue_of, parse_model_option, progress_line
 
     if args.model:
         parse_model_option(args.model, catalogue_of(args))  # a model that does not parse is refused before any work
+    timeout_s = cluster_timeout(args)
     effects = tuple(str(Path(f).resolve()) for f in args.effects)
     window = (getattr(args, "z_min", None), getattr(args, "z_max", None))
     jobs = [FitJob(p, args.model, effects, *window) for p in paths]
@@ -64,7 +75,7 @@ def fit_each(args: argparse.Namespace, paths: list[str], what: str):
     with progress_line(args, what) as progress:
         counter = ProgressCounter(progress, len(jobs))
         try:
-            for r in run_each(fit_for_comparison, jobs, jobs=max(1, args.jobs), scheduler=args.scheduler):
+            for r in fit_all_for_comparison(jobs, max(1, args.jobs), args.scheduler, timeout_s):
                 done[r.path] = r
                 counter.step(f"fitted {len(done)} of {len(jobs)} recordings")
         except ValueError as e:
@@ -181,10 +192,11 @@ def fit_many_command(args: argparse.Namespace) -> int:
     paths = recordings_in(folder)
     if not paths:
         raise UsageError(f"{folder} holds no recordings (*.h5); record some with rig run, or give another folder")
+    timeout_s = cluster_timeout(args)
     failed = 0
     if not args.json:
         print(f"{'recording':<32} {'k':>12} {'+/-':>9} {'lambda':>9} {'+/-':>9} {'headline':>9}  verdict")
-    rows = fit_many(paths, args.jobs, scheduler=args.scheduler)
+    rows = fit_many(paths, args.jobs, scheduler=args.scheduler, timeout_s=timeout_s)
     for row in _usage_errors(rows):
         failed += bool(row.error)
         if args.json:

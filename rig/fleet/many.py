@@ -4,12 +4,13 @@ and one model's for a comparison (`rig compare a.h5 b.h5`, `rig repeatability`: 
 Each recording is read and fitted in a worker process of a pool (one per core by default), and reported
 as it finishes; a recording that cannot be fitted is reported with its one-line reason and the others go on.
 The work of one recording is independent of the others', so the same function runs unchanged on a Dask cluster
-(`rig.fleet.executors`: --scheduler, or RIG_SCHEDULER; docs/performance.md, "Past one machine").
+(`rig.fleet.executors`: --scheduler, or RIG_SCHEDULER; docs/performance.md, "Past one machine"). Paths leave this
+process absolute (`portable`), for workers with other working directories, and come back as they were given.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
 
@@ -58,10 +59,35 @@ def fit_one(path: Path) -> ManyRow:
     return ManyRow(path, r.fit.k, r.fit.se_k, r.fit.lam, r.fit.se_lam, h.error_pct, h.verdict(), r.fit.n_obs, document=doc)
 
 
-def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None = None) -> Iterator[ManyRow]:
+def portable(path: str | Path) -> Path:
+    """`path` as a worker finds it whatever its working directory: absolute, from this process's (links are kept,
+    not resolved: a worker on another machine may see the link and not its target)."""
+    return Path(path).absolute()
+
+
+def fit_many(paths: list[Path], jobs: int | None = None, scheduler: str | None = None,
+             timeout_s: float | None = None) -> Iterator[ManyRow]:
     """Fit every recording, `jobs` at a time (default: one per core), or on the Dask cluster at `scheduler`
-    (`rig.fleet.executors`); rows come as recordings finish."""
-    yield from run_each(fit_one, paths, jobs=jobs, scheduler=scheduler)
+    (`rig.fleet.executors`, with its `timeout_s`); rows come as recordings finish, each with its path as given."""
+    given = {portable(p): Path(p) for p in paths}
+    for row in run_each(fit_one, list(given), jobs=jobs, scheduler=scheduler, timeout_s=timeout_s):
+        path = given[row.path]
+        yield replace(row, path=path, document=row.document and {**row.document, "file": str(path)})
+
+
+def fit_all_for_comparison(jobs: list[FitJob], workers: int | None = None, scheduler: str | None = None,
+                           timeout_s: float | None = None) -> Iterator[RecordingResult]:
+    """`fit_for_comparison` of every job, `workers` at a time or on the cluster at `scheduler` (`fit_many`), as they
+    finish, each with its path as given; a recording given twice is fitted once (its first job) and reported twice."""
+    sent: dict[str, FitJob] = {}
+    given: dict[str, list[str]] = {}
+    for job in jobs:
+        path = str(portable(job.path))
+        sent.setdefault(path, replace(job, path=path))
+        given.setdefault(path, []).append(job.path)
+    for r in run_each(fit_for_comparison, list(sent.values()), jobs=workers, scheduler=scheduler, timeout_s=timeout_s):
+        for path in given[r.path]:
+            yield replace(r, path=path)
 
 
 def fit_for_comparison(job: FitJob) -> RecordingResult:
