@@ -52,10 +52,11 @@ def applicable_candidates(model: Model, d: ModelData, catalogue: Catalogue | Non
 
 def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catalogue | None = None, *,
                     counter: ProgressCounter | None = None, jobs: int = 1,
-                    not_fitted: list[tuple[str, str]] | None = None) -> list[Candidate]:
-    """Every applicable effect of the catalogue not yet in `model`, fitted with it (in `jobs` processes), best
-    (lowest BIC) first. An effect whose fit fails is left out of the ranking, and (effect name, why) is added
-    to `not_fitted` if given, for the report to say."""
+                    not_fitted: list[tuple[str, str]] | None = None,
+                    hold: frozenset[str] = frozenset()) -> list[Candidate]:
+    """Every applicable effect of the catalogue not yet in `model`, fitted with it (in `jobs` processes; the
+    parameters in `hold` held at `base`'s values), best (lowest BIC) first. An effect whose fit fails is left out of
+    the ranking, and (effect name, why) is added to `not_fitted` if given, for the report to say."""
     effects = applicable_candidates(model, d, catalogue)
     models = [model + e for e in effects]
     if counter is not None and models:
@@ -70,7 +71,7 @@ def rank_candidates(model: Model, base: ModelFit, d: ModelData, catalogue: Catal
                          f"fitting candidate effects ({finished[0]} of {len(models)} done)")
 
     out = []
-    for e, m, f in zip(effects, models, fit_models(models, d, base.values, jobs=jobs, done=done, exact_loglik=False)):
+    for e, m, f in zip(effects, models, fit_models(models, d, base.values, jobs=jobs, done=done, exact_loglik=False, hold=hold)):
         if isinstance(f, ValueError):  # this effect cannot be fitted to these data
             if not_fitted is not None:
                 not_fitted.append((e.name, str(f) or type(f).__name__))

@@ -138,10 +138,10 @@ def _shapes_for(check: Check | None, head: Headline) -> tuple[str, list[str]]:
 
 def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: ProgressCounter | None = None,
                      jobs: int = 1, catalogue: Catalogue | None = None) -> Unexplained:
-    """Add empirical terms to `fit`'s model, worst failing family first, until within noise (or MAX_TERMS). After
-    each step, every catalogue effect not in the model is tried again (`catalogue`, the default one if None); the
-    most likely one is added instead of the next shape when it is significant, removes a material share of the
-    misfit, and leaves no more misfit than that shape would."""
+    """Add empirical terms to `fit`'s model, worst failing family first, until within noise (or MAX_TERMS). When no
+    further shape can be added and the model is still beyond noise, every catalogue effect not in the model is
+    tried again on top of the shapes (`catalogue`, the default one if None); the most likely one is added when it
+    is significant and removes a material share of the misfit, and the path goes on from there."""
     counter = counter or ProgressCounter(None, 1)
     out = Unexplained(fit, head, [])
     current_fit, current_head = fit, head
@@ -150,23 +150,23 @@ def explain_residual(fit: ModelFit, head: Headline, d: ModelData, *, counter: Pr
         if current_head.within_noise:
             out.stopped = "every statistic is within noise"
             break
-        if len(out.empirical_steps) >= MAX_TERMS:
-            out.stopped = f"{MAX_TERMS} empirical terms are in, the most the path adds; still beyond noise"
-            break
-        ruled_out = set(tried)  # the shapes ruled out on this model; kept only if a shape is added to it
-        shape = _next_shape(out, current_fit, current_head, d, ruled_out, counter, jobs)
-        # the catalogue was tried on `fit` by the catalogue's path; after a step, it is tried again on top of it
-        again = _catalogue_again(current_fit, current_head, d, catalogue, counter, jobs) if out.steps else None
-        if again is not None and (isinstance(shape, str) or again.headline.misfit <= shape.headline.misfit):
-            current_fit, current_head = again.fit, again.headline
-            out.steps.append(again)
+        if len(out.empirical_steps) < MAX_TERMS:
+            shape = _next_shape(out, current_fit, current_head, d, tried, counter, jobs)
+        else:
+            shape = f"{MAX_TERMS} empirical terms are in, the most the path adds"
+        if not isinstance(shape, str):
+            current_fit, current_head = shape.fit, shape.headline
+            out.steps.append(shape)
             continue
-        if isinstance(shape, str):
-            out.stopped = shape
+        # no shape to add: before stopping beyond noise, every catalogue effect not in the model is tried again on
+        # top of the shapes (the catalogue's own path tried them on `fit`, without)
+        again = _catalogue_again(current_fit, current_head, d, catalogue, counter, jobs) if out.steps else None
+        if again is None:
+            out.stopped = shape + ("; no catalogue effect, tried again on top of the shapes, is significant and material"
+                                   if out.steps else "")
             break
-        current_fit, current_head = shape.fit, shape.headline
-        out.steps.append(shape)
-        tried = ruled_out
+        current_fit, current_head = again.fit, again.headline
+        out.steps.append(again)
     if len(out.steps) > 1 and not current_head.within_noise:
         # the terms were fitted one at a time; a last refit with everything free lets each settle with the others
         counter.step(f"refitting {current_fit.model.name} with every parameter free")
@@ -282,18 +282,22 @@ def _fit_shapes(shapes: list[str], current_fit: ModelFit, d: ModelData, counter:
 
 def _catalogue_again(current_fit: ModelFit, current_head: Headline, d: ModelData, catalogue: Catalogue | None,
                      counter: ProgressCounter, jobs: int) -> EmpiricalStep | None:
-    """Every catalogue effect not in the model, fitted on top of it (`rig.diagnosis.candidates`); the most likely
-    one as a step when it is significant and removes a material share of the misfit, else None."""
+    """Every catalogue effect not in the model, fitted on top of it with the empirical terms held (a fair, quick
+    ranking: `rig.diagnosis.candidates`); the most likely one, refitted with every parameter but the earlier terms'
+    free, as a step when it is significant and removes a material share of the misfit, else None."""
     model = current_fit.model
     n = len(applicable_candidates(model, d, catalogue))
     if not n:
         return None
-    counter.expect(n + 1)
-    candidates = rank_candidates(model, current_fit, d, catalogue, counter=counter, jobs=jobs)
+    counter.expect(n + 2)
+    shapes = frozenset(v for e in model.effects if is_empirical(e) for v in current_fit.values if v.startswith(e.name + "."))
+    candidates = rank_candidates(model, current_fit, d, catalogue, counter=counter, jobs=jobs, hold=shapes)
     best, equivalent = choose(candidates)
     if best is None:
         return None
-    after = headline(best.fit, d)
+    counter.step(f"refitting {best.fit.model.name}")
+    fit = best.fit.model.fit(d, start=best.fit.values, errors=False, hold=shapes)
+    after = headline(fit, d)
     if after.misfit > (1 - MATERIAL_FRACTION) * current_head.misfit:
         return None  # significant, but it leaves what is wrong where it was
-    return EmpiricalStep("catalogue", "", best.effect, with_exact_loglik(best.fit, d), after, [], best, equivalent)
+    return EmpiricalStep("catalogue", "", best.effect, fit, after, [], best, equivalent)
