@@ -179,3 +179,48 @@ def test_a_bag_librealsense_recorded_keeps_every_topic_and_gains_its_sigma(model
         exact = np.array([port.sigma_m(*row, cos_incidence=c) for *row, c in zip(z, *uv, cos)])
         bound = rounding_bound(NoiseModel.from_dict(doc), z, *uv, {"cos_incidence": cos}) + 2.0**-24
         assert np.all(np.abs(image[valid] - exact) <= bound * exact)
+
+
+def _compressed_png(frame: np.ndarray) -> tuple[str, bytes]:
+    """16UC1 compressedDepth png as image_transport's codec.cpp makes it: a 12-byte ConfigHeader (format 0 and two
+    unset floats, compression_common.h) and cv::imencode's 16-bit PNG (OpenCV, the test extra)."""
+    import struct
+
+    import cv2
+
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(frame, np.uint16), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    assert ok
+    return "16UC1; compressedDepth png", struct.pack("<iff", 0, 0.0, 0.0) + png.tobytes()
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("form", ["32FC1", "big-endian", "compressedDepth"])
+def test_every_depth_form_the_import_reads_gets_the_raw_frames_sigma(model_file, tmp_path, form):
+    """The forms `rig import` reads (issue 48) give the sigma the raw 16UC1 frames give: exactly for big-endian and
+    PNG (the same counts); for 32FC1 metres the range is the float32 m value (counts x float32(1e-3), two roundings:
+    within 2 x 2^-24 of counts x 1 mm), which moves sigma by at most 3 times that (d ln sigma / d ln Z <= lambda = 3
+    for active + noise_floor; incidence and the radius shape do not depend on Z), and float32 rounds both outputs
+    (2^-24 between them): 7 x 2^-24 in all (6.4 seen). Bags by rosbags' writer (tests/ros_bags.py), outputs read by
+    rosbags."""
+    from ros_bags import Camera, write_cameras
+
+    doc = json.loads(model_file.read_text())
+    frames = _frames(doc)
+    raw = write_cameras(tmp_path / "raw", [Camera(frames)], fmt="mcap")
+    cam = {"32FC1": Camera((frames * np.float32(1e-3)).astype(np.float32), encoding="32FC1"),
+           "big-endian": Camera(frames, bigendian=True),
+           "compressedDepth": Camera(frames, compress=_compressed_png, right_info=None)}[form]
+    sent = write_cameras(tmp_path / "sent", [cam], fmt="mcap")
+    for bag in (raw, sent):
+        r = rig_in_process("sigma-bag", model_file, bag, "-q")
+        assert r.returncode == 0, r.stderr
+    want = [np.frombuffer(bytes(m[3].data), "<f4") for m in _messages(tmp_path / "raw-sigma", "/camera/depth/image_rect_raw/sigma")]
+    got = [np.frombuffer(bytes(m[3].data), "<f4") for m in _messages(tmp_path / "sent-sigma", f"{cam.depth_topic}/sigma")]
+    assert len(got) == len(want) == 3
+    for g, w in zip(got, want):
+        assert np.array_equal(np.isnan(g), np.isnan(w))
+        if form == "32FC1":
+            ok = ~np.isnan(w)
+            assert np.all(np.abs(g[ok] - w[ok]) <= 7 * 2.0**-24 * w[ok])
+        else:
+            assert np.array_equal(g, w, equal_nan=True)

@@ -1,7 +1,8 @@
 """`rig sigma-bag`: a recorded bag copied with a sigma image beside each depth frame, for a ROS pipeline to weight
 depth by (docs/noise-model.md).
 
-drivers.bag.contents finds the bag's depth topic, checks it (16-bit depth, little-endian) and says its depth unit;
+drivers.bag.contents finds the bag's depth topic and says its depth unit, and drivers.bag.depth_messages decodes each
+frame in any form the import reads (16UC1 or 32FC1, either byte order, raw or compressedDepth png/rvl);
 the messages are then read and written with rosbags: every topic of the input, message for message (the same bytes
 at the same times), into a bag of the same kind (ROS 1 `.bag`; a ROS 2 bag folder with the input's storage, sqlite3
 or MCAP), and one topic more, `<depth topic>/sigma` unless named: a sensor_msgs/Image, 32FC1 little-endian (REP 118:
@@ -32,13 +33,12 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from drivers.bag import read_facts
+from drivers.bag.depth_messages import COMPRESSED_IMAGE, DepthMessageError, decode, depth_format
 
 from ..noise_model import NoiseModel
 from .sigma_map import map_problem
 
 IMAGE = "sensor_msgs/msg/Image"
-#: the depth encodings read (drivers.bag.contents checks the first frame; each is checked here)
-DEPTH_ENCODINGS = ("16UC1", "mono16")
 #: the encoding of the sigma images: one float32 a pixel, metres (REP 118)
 SIGMA_ENCODING = "32FC1"
 
@@ -145,23 +145,34 @@ def _copy(model: NoiseModel, bag: Path, target: Path, depth_topic: str, sigma_to
         if any(c.topic == sigma_topic for c in reader.connections):
             raise SigmaBagError(f"{bag} has a topic {sigma_topic} already; name another with --sigma-topic")
         copies = {c.id: _connection(writer, reader, c, c.topic, kind) for c in reader.connections}
-        depth = [c for c in reader.connections if c.topic == depth_topic and c.msgtype == IMAGE]
-        sigma_c = _connection(writer, reader, depth[0], sigma_topic, kind)
-        Image = reader.typestore.types[IMAGE]
-        serialize = reader.typestore.serialize_ros1 if kind == "ros1" else reader.typestore.serialize_cdr
+        depth = [c for c in reader.connections if c.topic == depth_topic and c.msgtype in (IMAGE, COMPRESSED_IMAGE)]
+        store = reader.typestore if IMAGE in reader.typestore.types else get_typestore(
+            Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)  # a bag of compressed depth alone
+        sigma_c = (_connection(writer, reader, depth[0], sigma_topic, kind) if depth[0].msgtype == IMAGE
+                   else _image_connection(writer, store, depth[0], sigma_topic, kind))
+        Image = store.types[IMAGE]
+        serialize = store.serialize_ros1 if kind == "ros1" else store.serialize_cdr
         frames = 0
+        first = None
         for c, t, raw in reader.messages():
             writer.write(copies[c.id], t, raw)
-            if c.topic != depth_topic or c.msgtype != IMAGE:
+            if c.topic != depth_topic or c.msgtype not in (IMAGE, COMPRESSED_IMAGE):
                 continue
             msg = reader.deserialize(raw, c.msgtype)
             frames += 1
-            if (msg.width, msg.height) != (w, h) or msg.encoding not in DEPTH_ENCODINGS or msg.is_bigendian:
-                raise SigmaBagError(f"{bag}: frame {frames} of {depth_topic} is {msg.width}x{msg.height} {msg.encoding}"
-                                    f"{' big-endian' if msg.is_bigendian else ''}, not {w}x{h} 16-bit little-endian "
-                                    "depth as the first; give a bag of one depth stream")
-            counts = np.frombuffer(msg.data, np.uint8).reshape(h, int(msg.step))[:, : 2 * w].copy().view("<u2")
-            sigma = sigma_image(model, counts, unit, grid)
+            try:
+                fmt = depth_format(msg, c.msgtype, depth_topic)
+                image = decode(msg, fmt)
+            except DepthMessageError as e:
+                raise SigmaBagError(f"{bag}: frame {frames} of {depth_topic}: {e}; nothing was written") from None
+            first = first or (fmt, image.shape)
+            if (fmt, image.shape) != first or image.shape != (h, w):
+                raise SigmaBagError(f"{bag}: frame {frames} of {depth_topic} is {image.shape[1]}x{image.shape[0]} {fmt}, "
+                                    f"the first {first[1][1]}x{first[1][0]} {first[0]} and the model's camera {w}x{h}; "
+                                    "give a bag of one depth stream at the model's resolution")
+            # depth in metres (32FC1) is evaluated as it is, counts at the depth unit
+            z_unit = 1.0 if fmt.metres else unit
+            sigma = sigma_image(model, np.where(np.isfinite(image), image, 0), z_unit, grid)
             data = sigma.astype("<f4").view(np.uint8).ravel()
             out = Image(header=msg.header, height=h, width=w, encoding=SIGMA_ENCODING, is_bigendian=0, step=4 * w,
                         data=data)
@@ -189,4 +200,12 @@ def _connection(writer: Any, reader: Any, c: Any, topic: str, kind: str) -> Any:
     return writer.add_connection(topic, c.msgtype, typestore=None if definition and c.digest else reader.typestore,
                                  msgdef=definition, rihs01=c.digest or None,
                                  serialization_format=c.ext.serialization_format,
+                                 offered_qos_profiles=c.ext.offered_qos_profiles)
+
+
+def _image_connection(writer: Any, store: Any, c: Any, topic: str, kind: str) -> Any:
+    """An Image connection on `topic`, from `store`'s definition, with `c`'s caller or QoS (its depth topic's)."""
+    if kind == "ros1":
+        return writer.add_connection(topic, IMAGE, typestore=store, callerid=c.ext.callerid, latching=c.ext.latching)
+    return writer.add_connection(topic, IMAGE, typestore=store, serialization_format=c.ext.serialization_format,
                                  offered_qos_profiles=c.ext.offered_qos_profiles)
