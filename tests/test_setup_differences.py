@@ -183,3 +183,25 @@ def test_the_documents_follow_their_published_schema(recordings, compared, tmp_p
     assert rep["verdicts"][0].startswith("The runs are not of one set-up, so their scatter is not only the noise's: "
                                          "baseline 50 mm in fine.h5 against 100 mm in wide.h5")
     assert "the set-up differs in baseline, which changes k" in rep["verdicts"][0]
+
+
+def test_what_neither_recording_records_is_no_difference(tmp_path):
+    """Two imports of one bag's frames that differ only in the depth unit (16UC1 counts in mm and the same depth as
+    32FC1 metres, which the import keeps on its 1 mm grid with a given 0.5 mm unit): a ROS bag records no exposure
+    or gain, so both are NaN in each recording. Only the depth unit differs; NaN against NaN is "not recorded",
+    not a difference (an outside review of issue 48 found "exposure nan us in a.h5 against nan us in b.h5")."""
+    from ros_bags import Camera, write_cameras
+
+    from rig.cli import import_main
+
+    frames = np.random.default_rng(1).normal(1500, 4, (8, 6, 8)).round().astype(np.uint16)
+    counts = write_cameras(tmp_path / "counts", [Camera(frames)])
+    metres = write_cameras(tmp_path / "metres", [Camera((frames * np.float32(1e-3)).astype(np.float32), encoding="32FC1")])
+    args = ["--projector", "on", "--distance-m", "1.5", "-q"]
+    assert import_main([str(counts), "-o", str(tmp_path / "a.h5"), *args]) == 0
+    assert import_main([str(metres), "-o", str(tmp_path / "b.h5"), *args, "--depth-unit-m", "0.0005"]) == 0
+    r = rig_in_process("compare", tmp_path / "a.h5", tmp_path / "b.h5", "--model", "power_law",
+                       "--json", "--plot", tmp_path / "c.png")
+    doc = json.loads(r.stdout)
+    assert [d["item"] for d in doc["setup_differences"]] == ["depth_unit_m"], doc["setup_differences"]
+    assert "exposure" not in r.stdout.split("\n")[0] and "nan" not in json.dumps(doc["setup_differences"])

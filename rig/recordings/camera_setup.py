@@ -66,8 +66,9 @@ def _json_attr(attrs: dict, key: str) -> dict[str, Any]:
 
 
 def _plain(v: Any) -> Any:
-    """A value as JSON holds it (numpy scalars as int, float or bool), text as str, '' as None."""
-    if v is None or v == "":
+    """A value as JSON holds it (numpy scalars as int, float or bool), text as str; '' and NaN (what an import that
+    was not told the exposure or gain records) as None: not recorded."""
+    if v is None or v == "" or (isinstance(v, (float, np.floating)) and not np.isfinite(v)):
         return None
     if isinstance(v, (bool, np.bool_)):
         return bool(v)
