@@ -109,7 +109,7 @@ def test_the_evaluator_gives_rigs_sigma_and_its_error_on_every_pixel_stop(small_
 
 @pytest.mark.numeric
 def test_rig_export_writes_a_valid_file_whose_sigma_is_the_fits_own(small_recording, tmp_path):
-    out = tmp_path / "camera-noise.json"
+    out = tmp_path / "models" / "camera-noise.json"  # a folder not made yet is made, as for every output (it was a traceback)
     r = rig_in_process("export", small_recording, "--model", "active+slant_range+empirical(radius)", "-o", out,
                        "--sigma-map", "0.5,1,2", "--jobs", "1", "-q")
     assert r.returncode == 0, r.stderr
@@ -138,14 +138,14 @@ def test_rig_export_writes_a_valid_file_whose_sigma_is_the_fits_own(small_record
     # the errors are sqrt(diag C), or sqrt(diag C) g where frames are not independent and C is widened by g^2: 3 u
     assert np.allclose(np.sqrt(np.diag(c)), [errors[n] for n in doc["covariance"]["parameters"]],
                        rtol=2 * np.finfo(np.float64).eps, atol=0)
-    maps = np.load(tmp_path / "camera-noise.sigma-map.npy")
+    maps = np.load(out.parent / "camera-noise.sigma-map.npy")
     assert maps.shape == (3, cal.height, cal.width)
     assert np.all(np.diff(maps[:, cal.height // 2, cal.width // 2]) > 0)  # sigma grows with range at the centre
     # the map is the evaluator at every pixel of the image (rig.reports.sigma_map): the same function on the same
     # image of positions gives the same values, to the last bit
     v, u = np.mgrid[0:cal.height, 0:cal.width].astype(float)
     np.testing.assert_array_equal(maps[1], evaluator.sigma(np.full(u.shape, 1.0), u, v))
-    assert (tmp_path / "camera-noise.sigma-map.png").stat().st_size > 5000
+    assert (out.parent / "camera-noise.sigma-map.png").stat().st_size > 5000
 
 
 @pytest.mark.numeric

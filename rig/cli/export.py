@@ -82,6 +82,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         counter.finish()
         with Recording(args.recording) as rec:
             doc = noise_model_document(fit, d, rec, args.recording, h, notes)
+    out.parent.mkdir(parents=True, exist_ok=True)  # a folder that does not exist yet is made, as for every output
     out.write_text(json.dumps(doc, indent=1) + "\n")
     stream = sys.stderr if args.json else sys.stdout
     if args.json:
