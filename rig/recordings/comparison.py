@@ -119,8 +119,9 @@ class Pair:
         """Why there is no verdict in standard errors (None: there is one)."""
         if not self.misfit:
             return None
-        fits = " and ".join(f"{r.name} within noise (headline error {r.headline_pct:.2f} % against {r.noise_pct:.2f} % "
-                            "of noise)" for r in self.misfit)
+        # the worst statistic, not the headline's size alone: a fill rate or a kurtosis can be what is beyond noise
+        fits = " and ".join(f"{r.name} within noise ({r.verdict.removeprefix('beyond noise; ')}; headline error "
+                            f"{r.headline_pct:.2f} % against {r.noise_pct:.2f} % of noise)" for r in self.misfit)
         text = (f"no verdict in standard errors: {self.misfit[0].model} does not fit {fits}, and standard errors hold "
                 "only for a model that fits")
         rounding_cause = _rounding_cause(self)
