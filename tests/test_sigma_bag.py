@@ -224,3 +224,25 @@ def test_every_depth_form_the_import_reads_gets_the_raw_frames_sigma(model_file,
             assert np.all(np.abs(g[ok] - w[ok]) <= 7 * 2.0**-24 * w[ok])
         else:
             assert np.array_equal(g, w, equal_nan=True)
+
+
+def test_a_bag_of_another_camera_gets_its_sigma_with_a_note_saying_so(model_file, tmp_path):
+    """The model's camera has its own f and b; a bag of a camera with fx 1.5 times and a baseline 1.9 times the
+    model's (the two-camera bag of issue 48: 60 px and 50 mm against 90 px and 95 mm) is copied, with a one-line note
+    that the sigma is not this camera's (sigma ~ 1 / (f b)); the same camera gets none (an outside review found
+    none given)."""
+    from ros_bags import Camera, write_cameras
+
+    doc = json.loads(model_file.read_text())
+    k, b = doc["camera"]["intrinsics"], doc["camera"]["baseline_m"]
+    frames = _frames(doc)
+    same = write_cameras(tmp_path / "same", [Camera(frames, fx=k["fx"], baseline_m=b)])
+    other = write_cameras(tmp_path / "other", [Camera(frames, fx=1.5 * k["fx"], baseline_m=1.9 * b)])
+    r = rig_in_process("sigma-bag", model_file, same)
+    assert r.returncode == 0 and "note:" not in r.stderr, r.stderr
+    r = rig_in_process("sigma-bag", model_file, other)
+    assert r.returncode == 0 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith(f"note: {other}'s camera is not the model's (fx {1.5 * k['fx']:.4g} px against the "
+                               f"model's {k['fx']:.4g} px; baseline {1.9 * b * 1e3:.4g} mm against the model's "
+                               f"{b * 1e3:.4g} mm)")
+    assert (tmp_path / "other-sigma").is_dir()

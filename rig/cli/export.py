@@ -112,6 +112,8 @@ def cmd_sigma_bag(args: argparse.Namespace) -> int:
         written = write_sigma_bag(model, bag, out, topic=args.topic, sigma_topic=args.sigma_topic)
     except (NoiseModelError, SigmaBagError) as e:
         raise UsageError(str(e)) from None
+    for note in written.notes:
+        print(f"note: {note}", file=sys.stderr)
     print(f"sigma bag: {written.path} ({written.frames} frames of {written.depth_topic} with their sigma on "
           f"{written.sigma_topic}: {model.doc['model']}, 32FC1, m; depth unit {written.depth_unit_m:g} m; "
           "every other topic copied)")

@@ -56,6 +56,7 @@ class SigmaBag:
     sigma_topic: str
     frames: int
     depth_unit_m: float
+    notes: tuple[str, ...] = ()  # what the user should know: the bag's camera is not the model's
 
 
 def bag_kind(bag: Path) -> str:
@@ -121,6 +122,7 @@ def write_sigma_bag(model: NoiseModel, bag: Path, out: Path, *, topic: str | Non
     if (facts.width, facts.height) != (k["width"], k["height"]):
         raise SigmaBagError(f"{bag}: {facts.topic} is {facts.width}x{facts.height} px, the model's camera "
                             f"{k['width']}x{k['height']} px; export a model fitted at this camera's resolution")
+    notes = camera_notes(model.doc["camera"], facts.fx, facts.baseline_m, bag)
     unit = facts.depth_unit_m if np.isfinite(facts.depth_unit_m) else float(model.doc["camera"]["depth_unit_m"])
     sigma_topic = sigma_topic or f"{facts.topic}/sigma"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -133,7 +135,24 @@ def write_sigma_bag(model: NoiseModel, bag: Path, out: Path, *, topic: str | Non
                             "written; give a readable RealSense .bag or ROS 1/ROS 2 bag") from None
     finally:
         shutil.rmtree(partial, ignore_errors=True)
-    return SigmaBag(out, facts.topic, sigma_topic, frames, unit)
+    return SigmaBag(out, facts.topic, sigma_topic, frames, unit, notes)
+
+
+#: a focal length or baseline this far (relatively) from the model's is another camera's: units of one model differ
+#: by about 1 % in their factory calibration
+OTHER_CAMERA = 0.05
+
+
+def camera_notes(camera: dict, fx_px: float, baseline_m: float, bag: Path) -> tuple[str, ...]:
+    """A note when the bag's camera (its fx and baseline, where the bag says them) is not the model's: sigma scales
+    as 1 / (f b) (docs/noise-model.md), so the model's sigma is not this camera's."""
+    ours = {"fx": (fx_px, camera["intrinsics"]["fx"], "px", 1.0), "baseline": (baseline_m, camera["baseline_m"], "mm", 1e3)}
+    off = [f"{name} {v * k:.4g} {unit} against the model's {m * k:.4g} {unit}" for name, (v, m, unit, k) in ours.items()
+           if np.isfinite(v) and m and abs(v - m) > OTHER_CAMERA * abs(m)]
+    if not off:
+        return ()
+    return (f"{bag}'s camera is not the model's ({'; '.join(off)}): its sigma scales as 1 / (f b), so these sigma "
+            "images are not this camera's; export a model fitted to this camera (rig import, rig export)",)
 
 
 def _copy(model: NoiseModel, bag: Path, target: Path, depth_topic: str, sigma_topic: str, unit: float,
