@@ -15,7 +15,7 @@ import h5py
 import pytest
 
 from rig.cli import main
-from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN, NOT_INDEPENDENT, SATURATED_IR
+from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN, NOT_INDEPENDENT, OUTSIDE, SATURATED_IR
 from rig.simulation.validation import run_trial
 
 pytestmark = pytest.mark.slow
@@ -33,9 +33,19 @@ SIZE = dict(width=53)
 SHORTFALLS: dict[str, str] = {}
 #: noisy_confidence, the slowest trial, is left to the docs' table (rig validate-diagnosis); the suite does not run it
 SUITE = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORTFALLS[s])) if s in SHORTFALLS else s
-         for s in ALL_SCENARIOS if s not in ("noisy_confidence", *NOT_INDEPENDENT, *SATURATED_IR)]
+         for s in ALL_SCENARIOS if s not in ("noisy_confidence", *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE)]
 # temporal_filter (frames not independent) runs cheaper, without the path: tests/test_independence.py; and
-# ambient_saturated_ir (IR clipped near the wall) on a smaller image: tests/test_ir_saturation.py
+# ambient_saturated_ir (IR clipped near the wall) on a smaller image: tests/test_ir_saturation.py; the outside
+# scenes (fakes/outside, 26-100 s of CPU a diagnosis) are the docs' table's alone; one runs below as a trial
+
+
+def test_an_outside_scene_runs_as_a_trial_from_its_folder(tmp_path):
+    """The outside scenes enter the blind test as a lab's folder would (fakes/outside, then `rig import`): the
+    drift scene, the cheapest to diagnose, is imported and judged as kind "outside"."""
+    t = run_trial("outside_thermal_drift", 1, tmp_path)
+    assert t.kind == "outside" and t.correct and t.path, t
+    assert t.error_before_pct > t.error_after_pct and t.covariate_right, t
+    assert not list(tmp_path.glob("*-frames")), "the rendered folder is removed once imported"
 
 
 @pytest.mark.parametrize("effect", SUITE)

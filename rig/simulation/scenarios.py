@@ -78,8 +78,19 @@ NOT_INDEPENDENT: dict[str, Callable[[np.random.Generator], dict[str, float]]] = 
 #: nearest stops, as real IR does at short range with the projector on) under a hidden effect the brightness
 #: covariates carry: the diagnosis must still name that effect, with the clipped pixels kept out of brightness
 SATURATED_IR: dict[str, str] = {"ambient_saturated_ir": "ambient"}
+#: scenes from a generator written without reading rig's effects, models or fakes (fakes/outside, from the paper,
+#: the D435 datasheet and optics texts), imported as a lab's folder of frames is: an active stereo camera's physics
+#: and one effect no effect of rig names; the covariates the residual may rightly follow (none for the control)
+OUTSIDE: dict[str, tuple[str, ...]] = {
+    "outside_baseline": (),
+    "outside_gaussian_spot": ("radius", "slant", "brightness", "incidence"),
+    "outside_offcentre_projector": ("position", "brightness"),
+    "outside_ir_vignetting": ("radius", "slant", "brightness", "incidence"),
+    "outside_printed_albedo": ("brightness", "position"),
+    "outside_thermal_drift": ("time",),
+}
 #: every scenario the blind test runs
-ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT, *SATURATED_IR]
+ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE]
 
 
 @dataclass(frozen=True)
@@ -90,15 +101,20 @@ class Expected:
     named: tuple[str, ...] = ()
     covariates: tuple[str, ...] = ()
     not_independent: bool = False  # frames correlated: "frames not independent", never "within noise"
+    outside: bool = False  # a scene of fakes/outside: within noise at the end, by whatever path
 
     @property
     def kind(self) -> str:
         if self.not_independent:
             return "independence"
+        if self.outside:
+            return "outside"
         return "open" if self.covariates else ("pair" if len(self.named) > 1 else "catalogue")
 
 
 def expected(effect: str) -> Expected:
+    if effect in OUTSIDE:
+        return Expected((), OUTSIDE[effect], outside=True)
     if effect in NOT_INDEPENDENT:
         return Expected(not_independent=True)
     if effect in NOT_IN_CATALOGUE:
@@ -198,3 +214,19 @@ def record_scenario(sc: Scenario, out: str | Path, *, progress=None) -> Path:
 
 def answer_path(out: Path) -> Path:
     return out.with_name(out.stem + ".answer.json")
+
+
+def record_outside(effect: str, seed: int, path: Path) -> Path:
+    """Render the outside scene `effect` (`OUTSIDE`) of `seed` as fakes/outside writes it, a folder of frames with
+    its manifest, and import it to `path` as `rig import` does; the folder is removed once imported."""
+    import shutil
+
+    from fakes.outside import SCENES
+    from protocols.folder_import import import_folder
+
+    frames = Path(path).parent / f"{Path(path).stem}-frames"
+    try:
+        folder = SCENES[effect.removeprefix("outside_")](seed, frames)
+        return import_folder(folder, path)
+    finally:
+        shutil.rmtree(frames, ignore_errors=True)

@@ -35,7 +35,7 @@ from ..models.fitting.progress import ProgressFn, WorkProgress
 
 from ..diagnosis import diagnose
 from ..models import ModelData
-from .scenarios import ALL_SCENARIOS, expected, hidden_scenario, record_scenario
+from .scenarios import ALL_SCENARIOS, expected, hidden_scenario, record_outside, record_scenario
 
 
 @dataclass
@@ -63,7 +63,7 @@ class Trial:
     def passed(self) -> bool:
         if self.kind == "independence":  # named "frames not independent", and never "within noise"
             return self.correct and not self.within_noise
-        if self.kind == "open":
+        if self.kind in ("open", "outside"):
             return self.correct and self.covariate_right and self.within_noise
         return self.correct and self.halved and self.within_noise
 
@@ -72,10 +72,12 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
     """One blind trial: record the scenario of `seed` hiding `effect` (`scenario`: its size, as
     `hidden_scenario` takes it: width, frames), diagnose it, and score the diagnosis against the answer."""
     t0 = time.monotonic()
-    sc = hidden_scenario(seed, effect, **scenario)
-    path = record_scenario(sc, Path(workdir) / f"{effect}-{seed}.h5")
-    dg = diagnose(ModelData.from_recording(path), source=str(path))
     want = expected(effect)
+    if want.kind == "outside":
+        path = record_outside(effect, seed, Path(workdir) / f"{effect}-{seed}.h5")
+    else:
+        path = record_scenario(hidden_scenario(seed, effect, **scenario), Path(workdir) / f"{effect}-{seed}.h5")
+    dg = diagnose(ModelData.from_recording(path), source=str(path))
     before, catalogue, final = dg.model_headline, dg.catalogue_headline, dg.final_headline
     added = dg.added
     named = added[0] if added else "none"
@@ -85,15 +87,17 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
         correct = not catalogue.within_noise
     elif want.kind == "independence":
         correct = dg.independence.correlated and "Frames not independent" in dg.summary()
+    elif want.kind == "outside":
+        correct = True  # no effect to name: the scene's effect is in no catalogue, and any path may take it
     else:
         correct = named == (want.named[0] if want.named else "none")
     u = dg.unexplained
     covariate = u.covariate if u is not None else ""
-    after = final if want.kind in ("open", "independence") else catalogue
+    after = final if want.kind in ("open", "independence", "outside") else catalogue
     worst = after.consistency.worst(extra=1) if after.consistency is not None and not after.within_noise else None
     return Trial(
         effect, seed, want.kind, named, added, correct, covariate,
-        covariate in want.covariates if want.kind == "open" else True,
+        covariate in want.covariates if want.kind == "open" or (want.kind == "outside" and covariate) else True,
         before.error_pct, catalogue.error_pct, final.error_pct, after.noise_pct,
         after.excess_pct <= 0.5 * before.excess_pct or not want.named,
         catalogue.within_noise, after.within_noise, time.monotonic() - t0,
@@ -154,11 +158,13 @@ def summary(trials: list[Trial]) -> str:
             return f"{sum(bool(getattr(t, flag)) for t in ts)}/{n}"
 
         want = expected(effect).covariates
-        on_path = f"{sum(any(c in want for c in t.empirical) for t in ts)}/{n}" if kind == "open" else "-"
-        halved = count("halved") if kind not in ("open", "independence") else "-"
-        cov = count("covariate_right") if kind == "open" else "-"
+        open_like = kind in ("open", "outside")
+        on_path = f"{sum(any(c in want for c in t.empirical) for t in ts)}/{n}" if open_like and want else "-"
+        halved = count("halved") if kind not in ("open", "independence", "outside") else "-"
+        cov = count("covariate_right") if open_like and want else "-"
         before = statistics.median(t.error_before_pct for t in ts)
-        after = statistics.median((t.error_after_pct if kind == "open" else t.error_catalogue_pct) for t in ts)
-        lines.append(f"| {effect} | {kind} | {count('correct')} | {halved} | {cov} | {on_path} | "
+        after = statistics.median((t.error_after_pct if open_like else t.error_catalogue_pct) for t in ts)
+        named = count("correct") if kind != "outside" else "-"
+        lines.append(f"| {effect} | {kind} | {named} | {halved} | {cov} | {on_path} | "
                      f"{before:.2f} % -> {after:.2f} % | {count('within_noise')} |")
     return "\n".join(lines)
