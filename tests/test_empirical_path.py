@@ -96,20 +96,30 @@ def test_a_path_out_of_shapes_tries_the_catalogue_again_and_finds_the_rounding(b
     assert "+ quantization" in text and "the catalogue tried again" in text and "The path stopped: every statistic" in text
 
 
-def test_a_shape_the_data_do_not_determine_is_not_added_and_the_report_says_so(beam, monkeypatch):
-    """The gate: a shape whose coefficients have no finite error is not added; the path says why it stopped."""
+def test_a_shape_the_data_determine_in_part_is_reduced_and_one_they_do_not_is_not_added(beam, monkeypatch):
+    """The gate, on the first shape chosen: some coefficients undetermined -> the shape goes in with those held at
+    their neutral start (fixed in the model, so the final fit has no undetermined parameter); all undetermined ->
+    it is not added, and the path says why."""
     d, fit, head = beam
-    calls = []
+    for flat_all in (False, True):
+        calls = []
 
-    def flat_first(f, data, names):
-        calls.append(names)
-        return {names[0]: "the log-likelihood is flat along it"} if len(calls) == 1 else {}
+        def flat_first(f, data, names):
+            calls.append(names)
+            return ({n: "the log-likelihood is flat along it" for n in (names if flat_all else names[:1])}
+                    if len(calls) == 1 else {})
 
-    monkeypatch.setattr(unexplained_module, "undetermined", flat_first)
-    u = explain_residual(fit, head, d)
-    first = u.rejected[0]
-    assert first.covariate not in [s.covariate for s in u.steps]
-    assert first.why_not.startswith("not added: the data do not determine empirical(") and "flat" in first.why_not
+        monkeypatch.setattr(unexplained_module, "undetermined", flat_first)
+        u = explain_residual(fit, head, d)
+        first = calls[0][0]
+        shape = first.split(".")[0]
+        if flat_all:
+            assert u.rejected and u.rejected[0].why_not.startswith(f"not added: the data do not determine {shape}.")
+            assert shape not in [s.added for s in u.steps]
+        else:
+            step = u.steps[0]
+            assert step.added == shape and step.held == [first], (step.added, step.held, first)
+            assert first not in dict(step.fit.model.free()) and step.fit.values[first] == 0.0
 
 
 def test_undetermined_names_a_parameter_off_its_maximum_and_passes_a_determined_fit(beam):

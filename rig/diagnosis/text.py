@@ -59,6 +59,8 @@ def render_text(diag: Diagnosis) -> str:
             else:
                 tried = ", ".join(f"{t.covariate} {t.dbic:.0f}" if t.fit is not None else f"{t.covariate} (n/a)" for t in st.trials)
                 why = f"   (for {st.family}; dBIC of the shapes tried: {tried})"
+                if st.held:
+                    why += f"; held at their start, not determined by the data: {', '.join(st.held)}"
             lines.append(f"  {'+ ' + st.added:<36} {st.fit.model.name:<48} headline "
                          f"{st.headline.error_pct:6.2f} %  {st.headline.state}{why}")
     if diag.stopped:

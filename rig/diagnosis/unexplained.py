@@ -67,6 +67,7 @@ class EmpiricalStep:
     trials: list[ShapeTrial] = field(default_factory=list)
     candidate: Candidate | None = None  # the catalogue effect this step added, with its evidence
     equivalent_effects: list[Candidate] = field(default_factory=list)
+    held: list[str] = field(default_factory=list)  # the shape's coefficients the data do not determine, held at start
 
     @property
     def added(self) -> str:
@@ -222,22 +223,31 @@ def _next_shape(out: Unexplained, current_fit: ModelFit, current_head: Headline,
         chosen = min(tied, key=lambda t: order[t.covariate])
         tried.update(t.covariate for t in tied)  # the shapes the data cannot tell from it are the same reading
         tried.add(chosen.covariate)
-        # a shape the data do not determine describes nothing: its coefficients would follow the noise
+        # coefficients the data do not determine would follow the noise: such a shape is reduced to the ones they do
+        # (the others held at their neutral start, no change there), and not added when none is left
         name = f"empirical({chosen.covariate})"
-        flat = undetermined(chosen.fit, d, [n for n in chosen.fit.values if n.startswith(name + ".")])
-        if flat:
+        term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(name)]
+        own = [n for n, _ in chosen.fit.model.free() if n.startswith(name + ".")]
+        flat = undetermined(chosen.fit, d, own)
+        if len(flat) == len(own):
             chosen.why_not = f"not added: the data do not determine {', '.join(sorted(flat))} (the likelihood is flat along them)"
             if chosen.covariate not in {r.covariate for r in out.rejected}:
                 out.rejected.append(chosen)
             reason = f"{name} was {chosen.why_not}"
             continue
-        term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(name)]
+        start = dict(chosen.fit.values)
+        if flat:
+            held = {n.removeprefix(name + ".") for n in flat}
+            term.params = tuple(replace(q, vary=False) if q.name in held else q for q in term.params)  # type: ignore[misc]
+            start.update({f"{name}.{q.name}": q.value for q in term.params if q.name in held})
         # refit with the model's own parameters free too (earlier empirical terms held: they describe, not explain)
         counter.step(f"refitting {chosen.fit.model.name}")
         earlier = frozenset(n for e in current_fit.model.effects if is_empirical(e) for n in chosen.fit.values
                             if n.startswith(e.name + "."))
-        refit = chosen.fit.model.fit(d, start=chosen.fit.values, errors=False, hold=earlier)
-        return EmpiricalStep(family, chosen.covariate, term, refit, headline(refit, d), trials)
+        refit = chosen.fit.model.fit(d, start=start, errors=False, hold=earlier)
+        step = EmpiricalStep(family, chosen.covariate, term, refit, headline(refit, d), trials)
+        step.held = sorted(flat)
+        return step
 
 
 def _fit_shapes(shapes: list[str], current_fit: ModelFit, d: ModelData, counter: ProgressCounter,
