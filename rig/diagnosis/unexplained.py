@@ -229,7 +229,7 @@ def _next_shape(out: Unexplained, current_fit: ModelFit, current_head: Headline,
         term = chosen.fit.model.effects[[e.name for e in chosen.fit.model.effects].index(name)]
         own = [n for n, _ in chosen.fit.model.free() if n.startswith(name + ".")]
         flat = undetermined(chosen.fit, d, own)
-        if len(flat) == len(own):
+        if own and len(flat) == len(own):  # (a measured term, empirical(time), has no coefficient to determine)
             chosen.why_not = f"not added: the data do not determine {', '.join(sorted(flat))} (the likelihood is flat along them)"
             if chosen.covariate not in {r.covariate for r in out.rejected}:
                 out.rejected.append(chosen)
