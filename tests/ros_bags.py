@@ -20,6 +20,19 @@ RIGHT_INFO = "/camera/infra2/camera_info"
 PERIOD_NS = 33_333_333  # 30 fps
 
 
+def open_writer(path: Path, fmt: str) -> tuple[Path, object]:
+    """rosbags' own writer for `fmt`: 'ros1' (at `path`.bag), or 'db3' / 'mcap' (a ROS 2 bag folder at `path`,
+    storage version 8); the bag's path and the writer, not yet opened."""
+    if fmt == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        path = path.parent / f"{path.name}.bag"
+        return path, Writer(path)
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    return path, Writer(path, version=8, storage_plugin=StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3)
+
+
 def write_bag(path: Path, frames: np.ndarray, *, fx: float, fy: float, cx: float, cy: float, baseline_m: float,
               fmt: str = "db3", encoding: str = "16UC1", extra_depth_topic: str | None = None,
               start_ns: int = 1_700_000_000 * 10**9, skip: frozenset[int] = frozenset(),
@@ -55,15 +68,7 @@ def write_bag(path: Path, frames: np.ndarray, *, fx: float, fy: float, cx: float
     def serialize(msg, msgtype):
         return ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype)
 
-    if ros1:
-        from rosbags.rosbag1 import Writer
-
-        path = path.parent / f"{path.name}.bag"
-        writer = Writer(path)
-    else:
-        from rosbags.rosbag2 import StoragePlugin, Writer
-
-        writer = Writer(path, version=8, storage_plugin=StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3)
+    path, writer = open_writer(path, fmt)
     with writer as out:
         def add(topic, msgtype):
             return out.add_connection(topic, msgtype, typestore=ts) if not ros1 else out.add_connection(topic, msgtype, typestore=ts)
@@ -150,15 +155,7 @@ def write_cameras(path: Path, cameras: list[Camera], fmt: str = "mcap", start_ns
     def serialize(msg, msgtype):
         return ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype)
 
-    if ros1:
-        from rosbags.rosbag1 import Writer
-
-        path = path.parent / f"{path.name}.bag"
-        writer = Writer(path)
-    else:
-        from rosbags.rosbag2 import StoragePlugin, Writer
-
-        writer = Writer(path, version=8, storage_plugin=StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3)
+    path, writer = open_writer(path, fmt)
     with writer as out:
         for cam in cameras:
             c = out.add_connection(f"{cam.ns}/{cam.info}", Info.__msgtype__, typestore=ts)

@@ -57,7 +57,8 @@ ITEMS = (
 BY_KEY = {i.key: i for i in ITEMS}
 
 
-def _json_attr(attrs: dict, key: str) -> dict[str, Any]:
+def json_attr(attrs: Any, key: str) -> dict[str, Any]:
+    """A recording attribute holding a JSON object (`camera`, `stage`), as a dict; {} if absent or not one."""
     try:
         v = json.loads(attrs.get(key, "{}"))
     except (TypeError, ValueError):
@@ -82,7 +83,7 @@ def _plain(v: Any) -> Any:
 def read_setup(rec: Recording) -> dict[str, Any]:
     """The set-up of the open recording `rec`: {item key: value or None}, the keys of `ITEMS`."""
     cal, attrs = rec.calibration, rec.attrs
-    camera, params = _json_attr(attrs, "camera"), rec.protocol_params
+    camera, params = json_attr(attrs, "camera"), rec.protocol_params
     labels = rec.stop_labels()
     try:
         first = rec.stop(labels[0], third_moment=False) if labels else None

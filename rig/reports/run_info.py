@@ -8,12 +8,13 @@ and the first stop's settings as the camera read them back. Anything the file do
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from protocols.recording import Recording
+
+from ..recordings.camera_setup import json_attr
 
 NOT_RECORDED = "not recorded"
 
@@ -26,14 +27,6 @@ class RunInfo:
 
     def value(self, key: str) -> str:
         return next(v for k, _, v in self.rows if k == key)
-
-
-def _json_attr(attrs: dict, key: str) -> dict[str, Any]:
-    try:
-        v = json.loads(attrs.get(key, "{}"))
-    except (TypeError, ValueError):
-        return {}
-    return v if isinstance(v, dict) else {}
 
 
 def _text(v: Any) -> str:
@@ -59,7 +52,7 @@ def run_info(path: str | Path, report_utc: str, rig_version: str) -> RunInfo:
     """The metadata of the recording at `path`, with the report's own date and rig version."""
     with Recording(path) as rec:
         a = rec.attrs
-        camera, stage, params = _json_attr(a, "camera"), _json_attr(a, "stage"), rec.protocol_params
+        camera, stage, params = json_attr(a, "camera"), json_attr(a, "stage"), rec.protocol_params
         labels = rec.stop_labels()
         first = rec.stop(labels[0]) if labels else None
         read_back = first.settings_read_back if first is not None else {}
