@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from .sweep import Sweep, StopMaps
 
@@ -45,6 +44,8 @@ def stop_moments(sweep: Sweep, index: int, maps: StopMaps, n_nodes: int = 24) ->
 def population_fit(moments: list[StopMoments], dof_per_pixel: int) -> tuple[float, float]:
     """(k, lambda) minimising the expected negative log-likelihood sum_i nu_i [log s_i^2 + v_i / s_i^2],
     s_i = k mu_i^lambda: k^2 = mean(v_i mu_i^(-2 lambda)) in closed form, lambda by a bounded scalar search."""
+    from scipy.optimize import minimize_scalar  # 410 ms to import (tests/test_layers.py LAZY): the answer only
+
     mu = np.concatenate([m.mean_m[np.isfinite(m.mean_m)] for m in moments])
     v = np.concatenate([m.var_m2[np.isfinite(m.var_m2)] for m in moments])
     log_mu = np.log(mu)

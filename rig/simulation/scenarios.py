@@ -23,6 +23,7 @@ say for each scenario.
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -31,9 +32,11 @@ import numpy as np
 
 from fakes.camera import FakeCamera
 from fakes.effects import make_effect
+from fakes.outside import SCENES
 from fakes.stage import FakeStage
 from fakes.world import FakeWorld, Wall
 from protocols import Runner, perpendicular
+from protocols.folder_import import import_folder
 from rig.models.effects.builtin import EFFECTS
 from rig.models.parts.component import Effect
 
@@ -219,11 +222,6 @@ def answer_path(out: Path) -> Path:
 def record_outside(effect: str, seed: int, path: Path) -> Path:
     """Render the outside scene `effect` (`OUTSIDE`) of `seed` as fakes/outside writes it, a folder of frames with
     its manifest, and import it to `path` as `rig import` does; the folder is removed once imported."""
-    import shutil
-
-    from fakes.outside import SCENES
-    from protocols.folder_import import import_folder
-
     frames = Path(path).parent / f"{Path(path).stem}-frames"
     try:
         folder = SCENES[effect.removeprefix("outside_")](seed, frames)
