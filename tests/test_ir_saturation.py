@@ -40,11 +40,11 @@ def test_float_images_are_not_checked():
     assert acc.saturated is None
 
 
-def _record(tmp_path, ir_gain: float):
+def _record(tmp_path, ir_gain: float, light: str = "night"):
     world = FakeWorld(Wall(distance_m=1.0))
-    cam = FakeCamera(world, width=32, height=18, seed=1, light="night", ir_gain=ir_gain)
+    cam = FakeCamera(world, width=32, height=18, seed=1, light=light, ir_gain=ir_gain)
     plan = perpendicular(stops_m=[0.5, 1.0, 2.0], frames_per_stop=12, projector_on=True, ambient_frames=3)
-    out = tmp_path / f"gain{ir_gain:g}.h5"
+    out = tmp_path / f"gain{ir_gain:g}-{light}.h5"
     Runner(cam, FakeStage(world, seed=1), sleep=lambda s: None).run(plan, out)
     return out
 
@@ -84,14 +84,20 @@ def test_saturated_pixels_have_no_brightness_and_stay_in_the_range_fit(tmp_path)
     from rig.diagnosis.residuals import _Layout
     from rig.models import ModelData
 
-    clipped_file, plain_file = _record(tmp_path, ir_gain=4.0), _record(tmp_path, ir_gain=1.0)
+    clipped_file, plain_file = _record(tmp_path, ir_gain=4.0, light="day"), _record(tmp_path, ir_gain=1.0, light="day")
     d, plain = ModelData.from_recording(clipped_file), ModelData.from_recording(plain_file)
     assert len(d) == len(plain)  # no pixel left out of the range fit
     near = d.stop == 0
     assert np.isnan(d.ir[near]).mean() > 0.5  # the near stop's bright dots spread over the smoothing window
     assert np.isfinite(d.ir[~near]).mean() > 0.9
     assert np.isfinite(plain.ir).all()
-    assert np.isnan(d.ambient_ratio[near]).sum() >= np.isnan(d.ir[near]).sum()
+    # ambient / pattern light where the IR clipped: P from the same pixel at the next stop, scaled by the inverse
+    # square of its mean depth (rig.models.data.covariates.fill_clipped_ambient); the same scene at IR gain 1 does not
+    # clip, and A / P does not depend on the gain, so it measures the same ratio directly: within 2 % (each side
+    # the means of 12 frames and 3 projector-off frames, smoothed over 7 px of a field that falls as 1/Z^2; 0.8 % seen)
+    clip = near & np.isnan(d.ir)
+    assert clip.sum() > 100 and np.isfinite(d.ambient_ratio[clip]).all() and (plain.ambient_ratio[clip] > 0.01).all()
+    assert np.allclose(d.ambient_ratio[clip], plain.ambient_ratio[clip], rtol=0.02, atol=0)
     bins, _ = _Layout.of(d).families(d)["brightness"]
     assert (bins[np.isnan(d.ir)] == -1).all() and (bins[np.isfinite(d.ir)] >= 0).all()
 
@@ -100,7 +106,7 @@ def test_blind_diagnosis_with_saturated_ir_names_the_brightness_effect(tmp_path)
     """The blind scenario `ambient_saturated_ir` (one small seed; the docs' table runs 10 at full size): hidden
     ambient light, and IR clipping on the nearest stops' dots. The saturated pixel-stops are left out of brightness
     (and said so), the rest keep it, and the diagnosis names ambient first and ends within noise at this size
-    (at full size, 106 px and 100 frames, only 3 of 10 seeds end within noise: docs/models.md)."""
+    (at full size, 106 px and 100 frames, 9 of 10 seeds end within noise: docs/models.md)."""
     from rig.diagnosis import diagnose, render_text
     from rig.models import ModelData
     from rig.models.data.covariates import brightness_left_out

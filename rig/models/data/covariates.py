@@ -41,18 +41,32 @@ class StopSource:
     drift_center_m: float
     n_frames: int
     projector_on: bool
+    #: where the IR clipped (None: none, or not checked), and there the smoothed ambient light (DN) and mean depth (m):
+    #: for the pattern's light at those pixels from another stop (`fill_clipped_ambient`)
+    clipped: np.ndarray | None = None
+    ambient_dn: np.ndarray | None = None
+    mean_m: np.ndarray | None = None
+    #: the smoothed pattern light I - A (DN), NaN where clipped (None without projector-off frames)
+    pattern_dn: np.ndarray | None = None
 
     @classmethod
     def of(cls, stop: StopData, keep: np.ndarray, cal: CameraCalibration, window_px: int) -> "StopSource":
         ir = smoothed(stop.ir_mean, window_px).astype(np.float32) if stop.ir_mean is not None else None
         amb = ambient_ratio(stop.ir_mean, stop.ambient_ir_mean, window_px)
+        a = smoothed(stop.ambient_ir_mean, window_px) if amb is not None else None
+        pattern = smoothed(stop.ir_mean, window_px) - a if a is not None else None
         clipped = clipped_nearby(stop.ir_saturated, window_px)
         if clipped is not None and clipped.any():  # saturated brightness is not a brightness: no covariate value there
             ir = np.where(clipped, np.float32(np.nan), ir) if ir is not None else None
             amb = np.where(clipped, np.nan, amb) if amb is not None else None
+            pattern = np.where(clipped, np.nan, pattern) if pattern is not None else None
+        else:
+            clipped = None
         d_var, z_c = drift_variance_m2(stop)
         return cls(ir, amb.astype(np.float32) if amb is not None else None, plane_normal(stop.stats.mean_m, keep, cal),
-                   drift_inverse_variance(stop), d_var, z_c, max(stop.n_frames, 1), stop.projector_on)
+                   drift_inverse_variance(stop), d_var, z_c, max(stop.n_frames, 1), stop.projector_on, clipped,
+                   a.astype(np.float32) if a is not None and clipped is not None else None,
+                   stop.stats.mean_m.astype(np.float32), pattern.astype(np.float32) if pattern is not None else None)
 
     def drift_var_m2(self, z_m: np.ndarray) -> np.ndarray:
         """The drift variance at range z_m (m^2): D Z^4 from the whole-frame series (d(1/z) = -dz / z^2), or,
@@ -64,6 +78,30 @@ class StopSource:
             r2 = z2 / self.drift_center_m**2
             return self.drift_m2 * (r2 * r2)
         return np.zeros_like(z_m)
+
+
+def fill_clipped_ambient(sources: list[StopSource]) -> None:
+    """Ambient / pattern light where a stop's IR clipped: the pattern light P there is unknown (the clipped mean is a
+    lower bound), so it is taken from the same pixel at the nearest stop (in range) where it did not clip, scaled by
+    the inverse square of the pixel's mean depth, P = P' (Z' / Z)^2 (the projected light on the wall falls as 1/Z^2
+    along the ray; a matte wall's image brightness does not change with distance); the ambient light A is measured
+    (projector-off frames do not clip). Sets each such stop's `ambient` there, in place."""
+    for s in sources:
+        if s.clipped is None or s.ambient is None or s.ambient_dn is None or s.mean_m is None:
+            continue
+        todo = s.clipped & (s.mean_m > 0)
+        p_est = np.full(s.clipped.shape, np.nan)
+        others = [o for o in sources if o is not s and o.pattern_dn is not None and o.mean_m is not None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # nearest in range first: the inverse square is exact on the wall, the nearest stop the least extrapolated
+            for o in sorted(others, key=lambda o: abs(np.log(np.nanmedian(o.mean_m[o.mean_m > 0]) /
+                                                            np.nanmedian(s.mean_m[s.mean_m > 0])))):
+                ok = todo & np.isnan(p_est) & np.isfinite(o.pattern_dn) & (o.pattern_dn > 0) & (o.mean_m > 0)
+                p_est[ok] = o.pattern_dn[ok] * (o.mean_m[ok] / s.mean_m[ok]) ** 2
+            filled = todo & np.isfinite(p_est)
+            s.ambient = np.where(filled, np.clip(s.ambient_dn, 0, None) / p_est, s.ambient).astype(np.float32)
+    for s in sources:  # needed only here: not kept with the data (nor sent to the workers of a parallel fit)
+        s.clipped = s.ambient_dn = s.mean_m = s.pattern_dn = None
 
 
 def plane_normal(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibration) -> np.ndarray:

@@ -17,7 +17,7 @@ import numpy as np
 from protocols.recording import Recording, StopData
 from protocols.recording_errors import RecordingError
 
-from .covariates import StopSource
+from .covariates import StopSource, fill_clipped_ambient
 from .independence import independence, pooled_lag1
 from .stop_checks import count_problem, range_problem, zero_variance_problems
 
@@ -94,6 +94,7 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
     problem = independence(SimpleNamespace(**facts)).identical_problem()
     if problem:
         raise ValueError(f"{recording.path}: {problem}")
+    fill_clipped_ambient(sources)
     return RecordingRows(rows.arrays(), sources, facts, dropped_zero)
 
 
