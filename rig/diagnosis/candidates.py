@@ -30,6 +30,11 @@ EQUIVALENT_FRACTION = 0.02
 MATERIAL_FRACTION = 0.3
 
 
+def material(after_misfit: float, before_misfit: float) -> bool:
+    """An added effect removes at least MATERIAL_FRACTION of the misfit (`Headline.misfit`) it was added against."""
+    return not after_misfit > (1 - MATERIAL_FRACTION) * before_misfit  # (a NaN misfit counts as material, as before)
+
+
 @dataclass
 class Candidate:
     effect: Effect

@@ -22,11 +22,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from ..models import Catalogue, Effect, ModelData, ModelFit, empirical, undetermined, with_errors, with_exact_loglik
+from ..models import Catalogue, Effect, ModelData, ModelFit, empirical, undetermined, with_errors
 from ..models.effects.empirical import EmpiricalFrameMean, is_empirical
 from ..models.parallel import fit_models
 from ..models.fitting.progress import ProgressCounter
-from .candidates import MATERIAL_FRACTION, SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, rank_candidates
+from .candidates import SIGNIFICANT_DBIC, Candidate, applicable_candidates, choose, material, rank_candidates
 from .consistency import Check
 from .scores import Headline, headline
 
@@ -308,6 +308,6 @@ def _catalogue_again(current_fit: ModelFit, current_head: Headline, d: ModelData
     counter.step(f"refitting {best.fit.model.name}")
     fit = best.fit.model.fit(d, start=best.fit.values, errors=False, hold=shapes)
     after = headline(fit, d)
-    if after.misfit > (1 - MATERIAL_FRACTION) * current_head.misfit:
+    if not material(after.misfit, current_head.misfit):
         return None  # significant, but it leaves what is wrong where it was
     return EmpiricalStep("catalogue", "", best.effect, fit, after, [], best, equivalent)

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 from ..models import BASES, Catalogue, Model, ModelData, ModelFit, fit_power_law, with_errors, with_exact_loglik
 from ..models.data.independence import Independence, independence
 from ..models.fitting.progress import ProgressCounter, ProgressFn
-from .candidates import MATERIAL_FRACTION, SIGNIFICANT_DBIC, SIGNIFICANT_P, Candidate, applicable_candidates, choose, rank_candidates
+from .candidates import (MATERIAL_FRACTION, SIGNIFICANT_DBIC, SIGNIFICANT_P, Candidate, applicable_candidates, choose,
+                         material, rank_candidates)
 from .residuals import Residuals, residuals
 from .scores import Headline, headline
 from .unexplained import Unexplained, explain_residual
@@ -256,7 +257,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
             stopped = f"no catalogue effect lowers BIC by more than {-SIGNIFICANT_DBIC:g} with p < {SIGNIFICANT_P:g}"
             break
         after = headline(best.fit, d)
-        if after.misfit > (1 - MATERIAL_FRACTION) * current.headline.misfit:
+        if not material(after.misfit, current.headline.misfit):
             # significant, but it leaves what is wrong where it was: not the missing effect
             stopped = (f"{best.effect.name}, the most likely effect left, removes less than {MATERIAL_FRACTION:.0%} of "
                        "the misfit")
