@@ -111,7 +111,7 @@ def test_the_smoothed_brightness_is_scipys_gaussian_filter(shape):
     the kernel (reflected many times over). Where no set pixel lies within reach both give 0: exactly."""
     from scipy.ndimage import gaussian_filter
 
-    from rig.models.data.covariates import smoothed
+    from rig.models.data.smoothing import smoothed
 
     rng = np.random.default_rng(shape[0])
     image = rng.lognormal(3.0, 1.0, shape).astype(np.float32)
