@@ -224,6 +224,31 @@ class BeamFalloff(Effect):
 
 @register
 @dataclass
+class MottledBeam(Effect):
+    """The projector's diffuser spreads its light unevenly: the pattern's intensity varies in soft patches over the
+    field of view, fixed to the projector's rays (so to the same pixels at every range, the projector beside the lens).
+
+    The patches are exp(contrast * g), g a smooth random field of unit RMS over the normalised image coordinates:
+    eight plane waves of wavelength patch (in xn, yn units) in directions and phases drawn from `seed`. No law of
+    range or radius describes it; only the light each pixel measures does. Projector on only.
+    """
+
+    name: ClassVar[str] = "mottled_beam"
+    contrast: float = 0.5
+    patch: float = 0.2
+    seed: float = 0.0
+
+    def illumination(self, f: StopField) -> None:
+        if f.projector_on:
+            rng = np.random.default_rng(int(self.seed))
+            angle, phase = rng.uniform(0.0, np.pi, 8), rng.uniform(0.0, 2.0 * np.pi, 8)
+            k = 2.0 * np.pi / self.patch
+            g = sum(np.cos(k * (np.cos(a) * f.xn + np.sin(a) * f.yn) + ph) for a, ph in zip(angle, phase))
+            f.signal_e = f.signal_e * np.exp(self.contrast * g / np.sqrt(4.0))  # eight unit cosines: RMS 2
+
+
+@register
+@dataclass
 class LightFalloff(Effect):
     """The projected light falls as 1/r^p along each ray (r: slant range in m), not as 1/r^2.
 

@@ -9,7 +9,7 @@ sigma is the standard deviation of one depth sample at true range z_m (m) in pix
 predicts it before the depth file: before the rounding to the depth unit and the outliers, which the file lists
 apart (docs/noise-model.md, "After sigma"). Terms that need more than (z, u, v) name their input, and refuse to run
 without it: `cos_incidence` (incidence, empirical(incidence)), `ir_dn` (empirical(brightness)), `ambient_ratio`
-(ambient), `drift_var_m2` (drift). The standard error is the delta method over the file's covariance.
+(ambient), `drift_var_m2` (drift), `pattern_dn` (measured_light). The standard error is the delta method over the file's covariance.
 
 This module imports numpy, json and math, and nothing of rig: it is the reference a C++ or ROS port is checked
 against (the formulas: docs/noise-model.md; rig's own prediction: `rig.models.Model.predict_noise`).
@@ -30,7 +30,7 @@ SCHEMA = "rig.noise-model/1"
 TERMS = {"slant_range": (), "incidence": ("cos_incidence",), "read_noise": (), "ambient": ("ambient_ratio",),
          "noise_floor": (), "drift": ("drift_var_m2",), "censoring": (), "empirical(range)": (),
          "empirical(radius)": (), "empirical(slant)": (), "empirical(brightness)": ("ir_dn",),
-         "empirical(incidence)": ("cos_incidence",), "empirical(position)": ()}
+         "empirical(incidence)": ("cos_incidence",), "empirical(position)": (), "measured_light": ("pattern_dn",)}
 
 
 class NoiseModelError(ValueError):
@@ -153,6 +153,11 @@ class NoiseModel:
                 illum = illum * (1.0 + rho2)
             elif name == "incidence" and on:  # a matte wall returns cos(incidence)
                 illum = illum / np.clip(given["cos_incidence"], 0.05, 1.0)
+            elif name == "measured_light" and on:  # the light measured: (P_ref / (Z^2 P))^gamma where P is known
+                light = given["pattern_dn"]
+                known = np.isfinite(light) & (light > 0)
+                ratio = p["measured_light.pattern_ref_dn_m2"] / (z**2 * np.where(known, light, 1.0))
+                illum = illum * np.where(known, np.exp(p["measured_light.exponent"] * np.log(ratio)), 1.0)
         for t in terms:
             name = t["effect"]
             if name == "read_noise" and on:  # read noise against the pattern's light: r Z^2 (light loss)

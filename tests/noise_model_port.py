@@ -36,6 +36,9 @@ class PortedModel:
             illum *= 1 + rho2
         if "incidence" in names and on:
             illum /= min(max(inputs["cos_incidence"], 0.05), 1.0)
+        light = inputs.get("pattern_dn", math.nan)
+        if "measured_light" in names and on and math.isfinite(light) and light > 0:  # "where ... finite and positive"
+            illum *= (p["measured_light.pattern_ref_dn_m2"] / (z * z * light)) ** p["measured_light.exponent"]
         if "read_noise" in names and on:  # 3. image noise
             image += p["read_noise.ratio_at_1m"] * z * z * illum
         if "ambient" in names and on and math.isfinite(inputs["ambient_ratio"]):
@@ -134,6 +137,8 @@ def rounding_bound(evaluator: Any, z: np.ndarray, u: np.ndarray, v: np.ndarray,
 
     - the shot noise k^2 Z^(2 lambda), as exp(2 lambda ln Z) or a pow: ln Z's ulp and two products make an error of
       4 u |2 lambda ln Z| in the exponent, which exp turns into a relative one, plus its own ulp and k^2's rounding;
+    - the measured light's (P_ref / (Z^2 P))^gamma, as exp(gamma ln r) or a pow: 4 u |gamma ln r| in the exponent and
+      its ulp, the ratio's three roundings;
     - every other physical factor and term is positive (1 + rho^2, 1 / cos, r z^2, ambient, (z^2 / fb)^2 s^2, drift):
       at most 40 roundings in all, each u relatively;
     - an empirical shape multiplies by exp(2 g), g a cubic Hermite curve within 85 u S of another implementation of
@@ -152,7 +157,12 @@ def rounding_bound(evaluator: Any, z: np.ndarray, u: np.ndarray, v: np.ndarray,
     terms = evaluator.doc["sigma_terms"]
     for t in terms:
         name = t["effect"]
-        if name == "empirical(position)":
+        if name == "measured_light":  # (P_ref / (Z^2 P))^gamma: the exponent's error, 4 u |gamma ln ratio|, and a pow
+            light = np.asarray(inputs["pattern_dn"], dtype=float)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                size = np.abs(p["measured_light.exponent"] * np.log(p["measured_light.pattern_ref_dn_m2"] / (z * z * light)))
+            each = each + 4 * np.where(np.isfinite(size), size, 0.0) + 6
+        elif name == "empirical(position)":
             q = {n: p[f"empirical(position).{n}"] for n in ("a_x", "a_y", "a_xx", "a_xy", "a_yy")}
             size = (np.abs(q["a_x"] * x) + np.abs(q["a_y"] * y) + np.abs(q["a_xx"] * x * x) + np.abs(q["a_xy"] * x * y)
                     + np.abs(q["a_yy"] * y * y))

@@ -130,7 +130,7 @@ def test_every_built_in_effect_is_one_module_named_for_it_and_found_by_name():
     import rig.models
 
     assert list(rig.models.EFFECTS) == ["noise_floor", "read_noise", "ambient", "slant_range", "incidence", "outliers",
-                                        "quantization", "drift", "censoring"]  # by position: seeds keep their scenarios
+                                        "quantization", "drift", "censoring", "measured_light"]  # by position: seeds keep theirs
     for name, e in rig.models.EFFECTS.items():
         assert getattr(rig.models, name) is e and getattr(rig.models, type(e).__name__) is type(e)
         assert type(e).__module__ == f"rig.models.effects.builtin.{name}"

@@ -25,6 +25,7 @@ from noise_model_port import PortedModel, rounding_bound, se_bound
 from protocols.recording import Recording
 
 from rig.models import load_samples, parse_model
+from rig.models.data.pattern_light import light_rows
 from rig.models.parts.result import ModelFit
 from rig.models.parts.tangents import Tangents
 from rig.noise_model import TERMS, NoiseModel, NoiseModelError
@@ -34,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "docs" / "noise-model.schema.json").read_text())
 #: every term of sigma the evaluator knows, over three models (a term appears once per model)
 MODELS = ["power_law+slant_range+incidence+read_noise+noise_floor+empirical(radius)+empirical(position)+censoring",
-          "active+ambient+drift+empirical(range)+empirical(brightness)+empirical(incidence)",
+          "active+ambient+drift+measured_light+empirical(range)+empirical(brightness)+empirical(incidence)",
           "passive+noise_floor+empirical(slant)+outliers+quantization+empirical(tails)"]
 
 
@@ -75,8 +76,10 @@ def _fit_with(model, d, seed: int) -> ModelFit:
 
 
 def _inputs(evaluator: NoiseModel, d) -> dict[str, np.ndarray]:
-    known = {"cos_incidence": d.cos_inc, "ir_dn": d.ir, "ambient_ratio": d.ambient_ratio, "drift_var_m2": d.drift_var_m2}
-    return {n: known[n] for n in evaluator.inputs}
+    known = {"cos_incidence": lambda: d.cos_inc, "ir_dn": lambda: d.ir, "ambient_ratio": lambda: d.ambient_ratio,
+             "drift_var_m2": lambda: d.drift_var_m2,
+             "pattern_dn": lambda: light_rows(d, evaluator.values["measured_light.window_px"])}
+    return {n: known[n]() for n in evaluator.inputs}
 
 
 @pytest.mark.numeric
@@ -387,7 +390,7 @@ def test_each_parameter_has_one_unit_in_the_export_and_in_rig_result(small_recor
         doc = noise_model_document(fit, d, rec, small_recording)
     units = {p["name"]: p["unit"] for p in doc["parameters"]}
     assert units == fit_json(fit)["units"] and units["lambda"] == "1" and "" not in units.values()
-    documented = {"slant_range": 10, "incidence": 10, "read_noise": 20, "ambient": 20, "noise_floor": 30, "drift": 40,
+    documented = {"slant_range": 10, "incidence": 10, "measured_light": 10, "read_noise": 20, "ambient": 20, "noise_floor": 30, "drift": 40,
                   "censoring": 50, "quantization": 60, "outliers": 70, "empirical(tails)": 80}
     for t in doc["sigma_terms"] + doc["after_sigma"]:
         assert t["stage"] == documented.get(t["effect"], 45 if t in doc["sigma_terms"] else 80), t["effect"]

@@ -64,8 +64,9 @@ class Catalogue:
         return self.with_effects(load_effects(path), str(path))
 
     def candidates(self) -> list[Effect]:
-        """The effects the diagnosis tries, in catalogue order."""
-        return [e for e in self.effects.values() if not is_empirical(e)]
+        """The effects the diagnosis tries, in catalogue order: all but the empirical terms and those a model must
+        name (`Effect.diagnosed` False: `measured_light`)."""
+        return [e for e in self.effects.values() if not is_empirical(e) and getattr(e, "diagnosed", True)]
 
     def user_effects(self) -> list[Effect]:
         return [e for n, e in self.effects.items() if self.sources[n] != "built-in"]

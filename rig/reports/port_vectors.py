@@ -5,7 +5,8 @@ The inputs are drawn with a fixed seed over, and a little beyond, where the mode
 nearest to 1.25 x the farthest on a log scale (past the end knots, where an empirical shape is flat), pixels over the
 whole image at sub-pixel positions with its corners and centre exactly, and each input a term needs over its whole
 domain: cos_incidence from 0.01 (the clip at 0.05) to 1, ambient_ratio 0 to 0.5 and NaN (not measured) in one row of
-16, drift_var_m2 0 to 1e-8 m^2, ir_dn over the brightness shape's knots and beyond.
+16, drift_var_m2 0 to 1e-8 m^2, ir_dn over the brightness shape's knots and beyond, pattern_dn within a factor 3 of the
+typical pixel's light at that range (P_ref / Z^2) and NaN in one row of 16.
 """
 
 from __future__ import annotations
@@ -40,6 +41,10 @@ def vector_inputs(model: NoiseModel, rows: int = ROWS, seed: int = 0) -> dict[st
     ambient[::16] = np.nan
     draws = {"cos_incidence": rng.uniform(0.01, 1.0, rows), "ir_dn": np.exp(rng.uniform(*np.log(dn), rows)),
              "ambient_ratio": ambient, "drift_var_m2": rng.uniform(0.0, 1e-8, rows)}
+    if "pattern_dn" in model.inputs:  # about the light a typical pixel saw at that range, a factor 3 either way
+        light = model.values["measured_light.pattern_ref_dn_m2"] / out["z_m"] ** 2 * np.exp(rng.uniform(-1.1, 1.1, rows))
+        light[::16] = np.nan
+        draws["pattern_dn"] = light
     out.update({n: draws[n] for n in model.inputs})
     return out
 

@@ -68,6 +68,9 @@ _SIMULATOR_ONLY: dict[str, tuple[Callable[[np.random.Generator], dict[str, float
                          ("range", "fill")),
     "correlated_noise": (lambda r: {"sigma_px": r.uniform(0.03, 0.06), "length_px": r.uniform(16.0, 32.0)}, ("time",)),
     "scale_mixture": (lambda r: {"fraction": r.uniform(0.05, 0.1), "factor": r.uniform(3.0, 4.0)}, ("tails",)),
+    # light in soft patches: what `measured_light` describes when a model names it (tests/test_measured_light.py)
+    "mottled_beam": (lambda r: {"contrast": r.uniform(0.3, 0.5), "patch": r.uniform(0.6, 1.2),
+                                "seed": float(r.integers(1 << 20))}, ("position", "brightness")),
 }
 #: of those, the ones no catalogue effect names as its twin (an effect added to the catalogue for one of them turns
 #: its scenario into one the diagnosis must name the effect for)

@@ -11,7 +11,7 @@ covariate of any set of pixel rows is a gather or a formula, computed when it is
 from __future__ import annotations
 
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
@@ -50,6 +50,11 @@ class StopSource:
     mean_m: np.ndarray | None = None
     #: the smoothed pattern light I - A (DN), NaN where clipped (None without projector-off frames)
     pattern_dn: np.ndarray | None = None
+    #: the pattern light at each pixel, unsmoothed (DN, float32; NaN where unknown; None with the projector off or
+    #: without IR): `rig.models.data.pattern_light`, which smooths it over a window chosen from the data
+    light_raw: np.ndarray | None = None
+    #: light_raw smoothed, by window (px): computed when first asked for (`pattern_light.light_image`)
+    light_smoothed: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, stop: StopData, keep: np.ndarray, cal: CameraCalibration, window_px: int) -> "StopSource":
@@ -68,7 +73,9 @@ class StopSource:
         return cls(ir, amb.astype(np.float32) if amb is not None else None, plane_normal(stop.stats.mean_m, keep, cal),
                    drift_inverse_variance(stop), d_var, z_c, max(stop.n_frames, 1), stop.projector_on, clipped,
                    a.astype(np.float32) if a is not None and clipped is not None else None,
-                   stop.stats.mean_m.astype(np.float32), pattern.astype(np.float32) if pattern is not None else None)
+                   stop.stats.mean_m.astype(np.float32), pattern.astype(np.float32) if pattern is not None else None,
+                   raw_pattern_light(stop))
+
 
     def drift_var_m2(self, z_m: np.ndarray) -> np.ndarray:
         """The drift variance at range z_m (m^2): D Z^4 from the whole-frame series (d(1/z) = -dz / z^2), or,
@@ -104,6 +111,20 @@ def fill_clipped_ambient(sources: list[StopSource]) -> None:
             s.ambient = np.where(filled, np.clip(s.ambient_dn, 0, None) / p_est, s.ambient).astype(np.float32)
     for s in sources:  # needed only here: not kept with the data (nor sent to the workers of a parallel fit)
         s.clipped = s.ambient_dn = s.mean_m = s.pattern_dn = None
+
+
+def raw_pattern_light(stop: StopData) -> np.ndarray | None:
+    """The projected pattern's light at each pixel, unsmoothed: the IR mean less the projector-off mean where the stop
+    has one (DN, float32); NaN where any IR sample clipped (the mean is only a lower bound there: filled later from
+    another stop, `pattern_light.fill_clipped_light`). None with the projector off or without an IR image."""
+    if stop.ir_mean is None or not stop.projector_on:
+        return None
+    p = stop.ir_mean.astype(np.float64)
+    if stop.ambient_ir_mean is not None:
+        p = p - stop.ambient_ir_mean
+    if stop.ir_saturated is not None:
+        p = np.where(stop.ir_saturated > 0, np.nan, p)
+    return p.astype(np.float32)
 
 
 def plane_normal(mean_m: np.ndarray, valid: np.ndarray, cal: CameraCalibration) -> np.ndarray:

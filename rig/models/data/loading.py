@@ -18,6 +18,7 @@ from protocols.recording import Recording, StopData
 from protocols.recording_errors import RecordingError
 
 from .covariates import StopSource, fill_clipped_ambient
+from .pattern_light import fill_clipped_light
 from .independence import independence, pooled_lag1
 from .stop_checks import count_problem, range_problem, zero_variance_problems
 
@@ -94,6 +95,7 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
     problem = independence(SimpleNamespace(**facts)).identical_problem()
     if problem:
         raise ValueError(f"{recording.path}: {problem}")
+    fill_clipped_light(sources)  # before the ambient's: both read the stops' mean depth, which that one drops
     fill_clipped_ambient(sources)
     return RecordingRows(rows.arrays(), sources, facts, dropped_zero)
 

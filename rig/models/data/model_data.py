@@ -77,6 +77,8 @@ class StopTable:
 
 #: covariates computed from the stop sources when first used (or given, for data built by hand)
 LAZY = ("ir", "fill", "rho2", "cos_inc", "ambient_ratio", "drift_var_m2", "projector_on", "x_norm", "y_norm")
+#: columns effects derive from the sources by a key of their own (`ModelData.column`) start with this
+COLUMN_PREFIX = "column:"
 #: per-pixel quantities derived from the data alone, cached, and handed to chunks and selections as slices
 DERIVED = ("nu", "s2_m2", "neighbour_variance", "pixel_kurtosis", "z0_m", "ln_z0_m", "range_group", "kurtosis_usable",
            "excess_measured", "gamma_shape", "gamma_b", "kurtosis_weight", "grid_offset")
@@ -102,7 +104,7 @@ class ModelData(ShapeStatistics):
                  depth_unit_m: float = float("nan"), n_dropped_zero: int = 0, stops: StopTable | None = None,
                  sources: list[StopSource] | None = None, calibration: CameraCalibration | None = None,
                  **covariates: np.ndarray | None):
-        unknown = set(covariates) - set(LAZY)
+        unknown = {k for k in covariates if k not in LAZY and not k.startswith(COLUMN_PREFIX)}
         if unknown:
             raise TypeError(f"ModelData got unknown arrays {sorted(unknown)}")
         self.z_m, self.m2_m2, self.m4_m4, self.n, self.stop = z_m, m2_m2, m4_m4, n, stop
@@ -125,6 +127,16 @@ class ModelData(ShapeStatistics):
         col = self._cols.get(name)
         if col is None and self.sources is not None and self.calibration is not None:
             col = self._cols[name] = covariate_rows(name, self)
+        return col
+
+    def column(self, key: str, compute: Any) -> np.ndarray:
+        """A per-row column an effect derives from the sources (`key` starts with COLUMN_PREFIX): computed by
+        `compute()` when first asked for, then kept, and handed to selections as slices like the covariates."""
+        if not key.startswith(COLUMN_PREFIX):
+            raise KeyError(f"a derived column's key starts with {COLUMN_PREFIX!r}, not {key!r}")
+        col = self._cols.get(key)
+        if col is None:
+            col = self._cols[key] = compute()
         return col
 
     def _known(self) -> dict[str, Any]:

@@ -95,6 +95,9 @@ class Effect(Component):
     #: its place in the catalogue (`EFFECTS`): the diagnosis tries effects in this order and `rig simulate --seed N`
     #: draws among them in it; a new built-in effect takes the next free number
     position: ClassVar[int] = 1000
+    #: whether the diagnosis tries it among its candidates (`Catalogue.candidates`); False: only a model that names it
+    #: has it (`measured_light`, which explains any pattern of light and so would take the place of the effect to find)
+    diagnosed: ClassVar[bool] = True
 
     def scenario(self, rng: np.random.Generator) -> dict[str, float] | None:
         """The parameters of its twin the blind test hides, drawn from `rng` (realistic ranges); None: no scenario."""
