@@ -337,3 +337,35 @@ class ScaleMixture(Effect):
         wide = ctx.rng.random(d_px.shape) < self.fraction
         d_true = ctx.field.d_true_px
         d_px[wide] = d_true[wide] + (d_px[wide] - d_true[wide]) * np.float32(self.factor)
+
+
+# --- miscalibrations: the depth's bias against the truth (issue 50); none is on unless named ----------------------
+
+
+@register
+@dataclass
+class DisparityOffset(Effect):
+    """The matcher's disparity is off by a constant (a rectification or subpixel bias): d = d_true + offset_px.
+
+    Z = f b / (f b / Z_true + offset) falls short of the truth by about Z^2 offset / (f b): a bias growing as Z^2.
+    `offset_px` is in native px (848 wide), scaled to the rendered image.
+    """
+
+    name: ClassVar[str] = "disparity_offset"
+    offset_px: float = 0.05
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        d_px += np.float32(self.offset_px * ctx.field.px_scale)
+
+
+@register
+@dataclass
+class BaselineError(Effect):
+    """The camera converts disparity to depth with a baseline (or focal length) `scale` off: its f b is
+    (1 + scale) the true one, so every depth is (1 + scale) times what the disparity says: a bias growing as Z."""
+
+    name: ClassVar[str] = "baseline_error"
+    scale: float = 0.003
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        d_px /= np.float32(1.0 + self.scale)  # Z = (1 + scale) f b / d: the same as d / (1 + scale) at the true f b
