@@ -59,7 +59,9 @@ def test_fit_table_reads_back_as_the_fit(recording, tmp_path):
     with open(table, newline="") as f:
         rows = list(csv.DictReader(f))
     fit = fit_recording(recording)
-    assert list(rows[0]) == ["stop", "range_m", "pixels", "samples", "measured_sigma_m", "model_sigma_m", "fill_rate"]
+    assert list(rows[0]) == ["stop", "range_m", "pixels", "samples", "measured_sigma_m", "model_sigma_m", "fill_rate",
+                             "truth_m", "truth_source", "depth_accuracy_pct", "depth_accuracy_se_pct", "spatial_rms_m",
+                             "spatial_rms_noise_m", "model_bias_m"]
     assert [row["stop"] for row in rows] == ["0.500m", "1.000m", "1.500m", "2.000m"] == fit.measured.label
     assert sum(int(row["pixels"]) for row in rows) == fit.fit.n_pixels
     assert sum(int(row["samples"]) for row in rows) == fit.fit.n_samples

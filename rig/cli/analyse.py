@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", metavar="FILE.png", help="write a sigma-vs-range plot here (any format matplotlib writes: "
                                                       ".png, .pdf, .svg, ...)")
     p.add_argument("--table", metavar="STOPS.csv", help="write the per-stop table here (range, pixels, samples, "
-                                                       "measured and model sigma, fill rate; CSV)")
+                                                       "measured and model sigma, fill rate, accuracy against the "
+                                                       "stage; CSV)")
     p.add_argument("--many", action="store_true", help="RECORDING is a folder: fit every *.h5 in it, one process per "
                                                        "core (--jobs) or on a Dask cluster (--scheduler), a line each "
                                                        "(with --json: one document a line)")
@@ -102,13 +103,17 @@ def cmd_fit(args: argparse.Namespace) -> int:
             raise UsageError(str(e)) from None
         counter.step("headline error: every statistic the paper's fit predicts")
         h = headline(r.fit, r.samples.positive_variance())
+        acc = _accuracy(r.fit, r.samples)
         counter.finish()
     if args.json:
+        from ..accuracy import accuracy_json
         from ..reports.result_json import document, dumps, fit_json
 
         print(dumps(document("fit", args.recording, r.notes, [fit_json(r.fit, h)], best=r.fit.model.name,
-                             window_m=(args.z_min, args.z_max))))
+                             window_m=(args.z_min, args.z_max), accuracy=accuracy_json(acc))))
     else:
+        from ..accuracy import accuracy_lines
+
         for note in r.notes:
             print(f"note: {note}")
         mode = "projector on" if r.projector_on else "projector off"
@@ -116,13 +121,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(r.fit.report())
         print(f"    headline error: {h}")
         print(_fix_line(h) or f"    (what is missing? rig diagnose {args.recording})")
+        for line in accuracy_lines(acc):
+            print(line)
     _fit_report(args, r.fit, r.samples.positive_variance(), h, r.notes)
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 
         out = plot_sigma_vs_range([SigmaSeries(r.path.stem, r.measured, r.fit, "tab:red")], args.plot)
         print(f"plot: {out}", file=sys.stderr if args.json else sys.stdout)  # stdout holds the JSON alone
-    _write_table(args, r.fit, r.samples)
+    _write_table(args, r.fit, r.samples, acc)
     return exit_status([h])
 
 
@@ -144,15 +151,19 @@ def _fit_model(args: argparse.Namespace) -> int:
         counter.step("headline error: every statistic the model predicts")
         h = headline(f, d)
         nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter, jobs=max(1, args.jobs))
+        acc = _accuracy(f, d)
         counter.finish()
     if args.json:
+        from ..accuracy import accuracy_json
         from ..reports.result_json import document, dumps, fit_json
 
         print(dumps(document("fit", args.recording, notes, [fit_json(f, h, held_out_nll=nll)], best=model.name,
-                             window_m=(args.z_min, args.z_max))))
-        _write_table(args, f, d)
+                             window_m=(args.z_min, args.z_max), accuracy=accuracy_json(acc))))
+        _write_table(args, f, d, acc)
         _fit_report(args, f, d, h, notes)
         return exit_status([h])
+    from ..accuracy import accuracy_lines
+
     for note in notes:
         print(f"note: {note}")
     print(f.report())
@@ -161,7 +172,9 @@ def _fit_model(args: argparse.Namespace) -> int:
         print(_fix_line(h))
     if nll is not None:
         print(f"    held-out negative log-likelihood per degree of freedom: {nll:.6f}")
-    _write_table(args, f, d)
+    for line in accuracy_lines(acc):
+        print(line)
+    _write_table(args, f, d, acc)
     _fit_report(args, f, d, h, notes)
     return exit_status([h])
 
@@ -275,13 +288,21 @@ def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str]) -> None:
     print(f"report: {page}", file=sys.stderr if args.json else sys.stdout)
 
 
-def _write_table(args: argparse.Namespace, fit, d) -> None:
-    """`--table FILE`: the per-stop table of `fit` on its pixels `d` (rig.reports.stop_table)."""
+def _accuracy(fit, d):
+    """The recording's accuracy against the stage's truth (rig.accuracy), the spatial RMS's noise from `fit`."""
+    from ..accuracy import accuracy_of
+
+    return accuracy_of(d, np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape))
+
+
+def _write_table(args: argparse.Namespace, fit, d, acc=None) -> None:
+    """`--table FILE`: the per-stop table of `fit` on its pixels `d` (rig.reports.stop_table), with the stops'
+    accuracy `acc` where given."""
     if not args.table:
         return
     from ..reports.stop_table import stop_rows, write_stop_table
 
-    out = write_stop_table(stop_rows(fit, d), args.table)
+    out = write_stop_table(stop_rows(fit, d, acc), args.table)
     print(f"table: {out}", file=sys.stderr if args.json else sys.stdout)
 
 

@@ -81,12 +81,17 @@ def fit_json(fit: ModelFit, head: Headline | None = None, status: LambdaStatus |
 
 
 def document(command: str, file: str | Path, notes: list[str], fits: list[dict], *, best: str | None = None,
-             window_m: tuple[float | None, float | None] = (None, None), diagnosis: dict | None = None) -> dict:
-    """The whole output of one command (docs/json.md)."""
+             window_m: tuple[float | None, float | None] = (None, None), diagnosis: dict | None = None,
+             accuracy: dict | None = None) -> dict:
+    """The whole output of one command (docs/json.md); `accuracy` (rig fit's: `rig.accuracy.accuracy_json`) only
+    where given."""
 
-    return {"schema": SCHEMA, "command": command, "rig_version": package_version(), "file": str(file),
-            "notes": list(notes), "window_m": {"z_min": window_m[0], "z_max": window_m[1]}, "fits": fits,
-            "best": best, "diagnosis": diagnosis}
+    doc = {"schema": SCHEMA, "command": command, "rig_version": package_version(), "file": str(file),
+           "notes": list(notes), "window_m": {"z_min": window_m[0], "z_max": window_m[1]}, "fits": fits,
+           "best": best, "diagnosis": diagnosis}
+    if accuracy is not None:
+        doc["accuracy"] = accuracy
+    return doc
 
 
 def diagnosis_json(diag: Diagnosis, plots: list[Path], page: Path) -> tuple[list[dict], dict]:

@@ -20,7 +20,7 @@ from protocols.recording_errors import RecordingError
 from .covariates import StopSource, fill_clipped_ambient
 from .pattern_light import fill_clipped_light
 from .independence import independence, pooled_lag1
-from .stop_checks import count_problem, range_problem, zero_variance_problems
+from .stop_checks import count_problem, range_problem, stop_truth, zero_variance_problems
 
 #: per-stop facts of frame independence (rig.models.data.independence): the pooled lag-1 sums, frames repeating their
 #: predecessor, pixels kept (two samples or more) and those of them that never changed; NaN: not recorded
@@ -51,7 +51,8 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
     labels = [label for label in recording.stop_labels() if label not in excluded]
     rows = _Rows(len(labels) * cal.width * cal.height)
     sources: list[StopSource] = []
-    facts: dict[str, list] = {k: [] for k in ("label", "frames", "series_var_inv2", "n_valid", "time_s", *LAG1_FACTS)}
+    facts: dict[str, list] = {k: [] for k in ("label", "frames", "series_var_inv2", "n_valid", "time_s", "truth_m",
+                                              "truth_source", *LAG1_FACTS)}
     dropped_zero = 0
     zero_shares: list[float] = []
     for label in labels:
@@ -154,6 +155,9 @@ def _add_stop_facts(table: dict[str, list], stop: StopData) -> None:
     table["n_valid"].append(float(np.mean(frac)) * size if len(frac) and np.isfinite(frac).all() else np.nan)
     ts = series.timestamp_ms if series is not None else np.array([])
     table["time_s"].append(float(np.mean(ts)) / 1000.0 if len(ts) and np.isfinite(ts).all() else np.nan)
+    truth_m, source = stop_truth(stop)
+    table["truth_m"].append(truth_m)
+    table["truth_source"].append(source)
 
 
 def _add_lag1_facts(table: dict[str, list], s, kept: int, constant: int) -> None:

@@ -73,6 +73,9 @@ class StopTable:
     frames_repeated: np.ndarray | None = None
     kept: np.ndarray | None = None
     constant: np.ndarray | None = None
+    #: where each stop's wall was (m) and how that is known (`stop_checks.stop_truth`): the accuracy's ground truth
+    truth_m: np.ndarray | None = None
+    truth_source: tuple[str, ...] | None = None
 
 
 #: covariates computed from the stop sources when first used (or given, for data built by hand)
@@ -389,7 +392,8 @@ def load_samples(recording: Any, *, min_count: int = 2, positive_variance: bool 
     f = r.facts
     t0 = np.nanmin(f["time_s"]) if np.isfinite(f["time_s"]).any() else 0.0
     stops = StopTable(tuple(f["label"]), np.array(f["frames"]), np.array(f["series_var_inv2"]), np.array(f["n_valid"]),
-                      np.array(f["time_s"]) - t0, **{k: np.array(f[k], float) for k in LAG1_FACTS})
+                      np.array(f["time_s"]) - t0, **{k: np.array(f[k], float) for k in LAG1_FACTS},
+                      truth_m=np.array(f["truth_m"], float), truth_source=tuple(f["truth_source"]))
     cal = recording.calibration
     return ModelData(**r.arrays, fb_px_m=cal.fx * cal.baseline_m, depth_unit_m=cal.depth_scale_m, stops=stops,
                      sources=r.sources, calibration=cal, n_dropped_zero=r.dropped_zero)

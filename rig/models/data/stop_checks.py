@@ -26,13 +26,23 @@ COUNT_TOLERANCE = 1e-3
 _LABEL_M = re.compile(r"^([0-9]+(?:\.[0-9]+)?)m$")
 
 
-def stop_distance_m(stop) -> float:
-    """Where the stop says it was: the measured stage position, else the commanded one, else its label ('2.500m')."""
-    for z in (stop.measured_position_m, stop.commanded_position_m):
+#: where a stop's distance came from (`stop_truth`), in the words the report uses
+TRUTH_SOURCES = ("stage measured", "stage commanded", "plan")
+
+
+def stop_truth(stop) -> tuple[float, str]:
+    """Where the stop says the wall was, m, and how it knows (TRUTH_SOURCES): the stage's measured position, else the
+    commanded one, else the plan's distance in its label ('2.500m'); (NaN, "") when nothing says."""
+    for z, source in zip((stop.measured_position_m, stop.commanded_position_m), TRUTH_SOURCES):
         if z is not None and math.isfinite(z) and z > 0:
-            return float(z)
+            return float(z), source
     m = _LABEL_M.match(stop.label)
-    return float(m.group(1)) if m else math.nan
+    return (float(m.group(1)), TRUTH_SOURCES[2]) if m else (math.nan, "")
+
+
+def stop_distance_m(stop) -> float:
+    """Where the stop says it was (`stop_truth`), m."""
+    return stop_truth(stop)[0]
 
 
 def range_problem(stop) -> str | None:

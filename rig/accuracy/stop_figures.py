@@ -1,0 +1,86 @@
+"""Each stop's depth against the stage's ground truth: the figures the vendors' test methods define.
+
+Intel's "Camera Depth Testing Methodology" and Orbbec's depth-quality metrics measure a flat target at known
+distances: **depth accuracy**, the signed median of measured minus true depth as a % of the distance; **spatial
+precision**, the RMS of the depth about a plane fitted to it; **fill rate**, the share of valid depth. Here each
+pixel's depth is its mean over the stop's frames with the curvature of Z = f b / d taken out (`ModelData.z0_m`: the
+mean of f b / d exceeds f b / mean d by sigma_Z^2 / Z), and the truth is the stop's distance as the stage measured it,
+else as it was commanded, else the plan's (`stop_checks.stop_truth`; `truth_source` says which). A perpendicular
+wall's depth (Z, not the range along the ray) is the distance at every pixel.
+
+Each figure carries the error sampling noise gives it: the median's standard error is sqrt(pi / 2) times the
+pixels' robust spread (1.4826 MAD) over sqrt(N); the spatial RMS is compared with what the pixels' own temporal noise
+adds to it, sqrt(mean(var_i / n_i)), var_i the noise model's variance where a fit is given (else the sample's).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..models import ModelData
+from ..models.data.model_data import stops_of
+
+#: sqrt(pi / 2): the standard error of a normal sample's median over that of its mean
+MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2)
+#: the robust spread: 1.4826 x the median absolute deviation is a normal sample's standard deviation
+MAD_TO_SD = 1.4826
+
+
+@dataclass(frozen=True)
+class StopAccuracy:
+    """One stop's accuracy figures (see the module docstring)."""
+
+    stop: str
+    truth_m: float
+    truth_source: str  # "stage measured", "stage commanded", "plan"
+    pixels: int
+    mean_bias_m: float  # mean of (Z - truth) over the pixels, m
+    mean_bias_se_m: float  # its standard error: the pixels' standard deviation over sqrt(N), m
+    depth_accuracy_pct: float  # signed median of (Z - truth) / truth, %
+    depth_accuracy_se_pct: float
+    spatial_rms_m: float  # RMS about the plane fitted to the pixels' depth, m
+    spatial_rms_noise_m: float  # what the pixels' temporal noise alone adds to it, m
+    fill_rate: float
+
+
+def stop_accuracy(d: ModelData, var_m2: np.ndarray | None = None) -> list[StopAccuracy]:
+    """The figures of every stop of `d` whose truth is known (`var_m2`: the noise model's variance of each row, for
+    the spatial RMS's noise; the sample variance when None)."""
+    table = d.stops
+    if table is None or table.truth_m is None:
+        return []
+    if var_m2 is None:
+        var_m2 = d.s2_m2
+    out = []
+    for s in stops_of(d).tolist():
+        truth = float(table.truth_m[s])
+        rows = np.flatnonzero(d.stop == s)
+        z = np.asarray(d.z0_m[rows], dtype=float)
+        ok = np.isfinite(z) & (z > 0)
+        if not math.isfinite(truth) or truth <= 0 or np.count_nonzero(ok) < 3:
+            continue
+        rows, z = rows[ok], z[ok]
+        dev = z - truth
+        n = len(dev)
+        median = float(np.median(dev))
+        spread = MAD_TO_SD * float(np.median(np.abs(dev - median)))
+        plane = _plane_residuals(z, np.asarray(d.u_px[rows], float), np.asarray(d.v_px[rows], float))
+        noise = float(np.sqrt(np.mean(np.asarray(var_m2, dtype=float)[rows] / d.n[rows])))
+        out.append(StopAccuracy(
+            stop=table.label[s], truth_m=truth, truth_source=table.truth_source[s], pixels=n,
+            mean_bias_m=float(np.mean(dev)), mean_bias_se_m=float(np.std(dev, ddof=1) / math.sqrt(n)),
+            depth_accuracy_pct=100.0 * median / truth,
+            depth_accuracy_se_pct=100.0 * MEDIAN_SE_FACTOR * spread / math.sqrt(n) / truth,
+            spatial_rms_m=float(np.sqrt(np.mean(plane**2))), spatial_rms_noise_m=noise,
+            fill_rate=float(np.mean(d.fill[rows])) if d.fill is not None else math.nan))
+    return out
+
+
+def _plane_residuals(z: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """z less the least-squares plane a + b u + c v through it (u, v centred, for a well-conditioned solve)."""
+    a = np.column_stack([np.ones_like(z), u - u.mean(), v - v.mean()])
+    coef, *_ = np.linalg.lstsq(a, z, rcond=None)
+    return z - a @ coef

@@ -1,0 +1,74 @@
+"""A recording's accuracy in words and in JSON: the stops' figures and the bias model, for `rig fit`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ..models import ModelData
+from .bias import MEANING, UNITS, BiasFit, fit_bias
+from .stop_figures import StopAccuracy, stop_accuracy
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """Every stop's figures and the bias fitted to them (None with fewer than two stops of known truth)."""
+
+    stops: tuple[StopAccuracy, ...]
+    bias: BiasFit | None
+
+    @property
+    def truth_source(self) -> str:
+        """Where the truth came from, in words: one source, or each with its stops' count."""
+        sources = [s.truth_source for s in self.stops]
+        kinds = sorted(set(sources), key=sources.index)
+        return kinds[0] if len(kinds) == 1 else ", ".join(f"{k} ({sources.count(k)} stops)" for k in kinds)
+
+
+def accuracy_of(d: ModelData, var_m2: np.ndarray | None = None) -> Accuracy:
+    """The accuracy of the recording `d` holds (`var_m2`: the noise model's variance of each row, see
+    `stop_accuracy`)."""
+    stops = stop_accuracy(d, var_m2)
+    return Accuracy(tuple(stops), fit_bias(stops, d.fb_px_m))
+
+
+def accuracy_lines(a: Accuracy) -> list[str]:
+    """The text report's lines (none when no stop's truth is known)."""
+    if not a.stops:
+        return []
+    worst = max(a.stops, key=lambda s: abs(s.depth_accuracy_pct))
+    lines = [f"    accuracy against the {a.truth_source} distance: depth accuracy {worst.depth_accuracy_pct:+.3f} % "
+             f"(+/- {worst.depth_accuracy_se_pct:.3f}) at {worst.stop}, the worst of {len(a.stops)} stops; spatial RMS "
+             f"{1e3 * worst.spatial_rms_m:.3g} mm there (noise alone {1e3 * worst.spatial_rms_noise_m:.3g} mm)"]
+    b = a.bias
+    if b is None:
+        return lines + ["    bias model: not fitted (it needs two stops or more whose distance is known)"]
+    shown = {"offset_m": lambda v: f"{1e3 * v:+.3f} mm", "scale": lambda v: f"{100 * v:+.4f} %",
+             "disparity_offset_px": lambda v: f"{v:+.5f} px"}
+    parts = [f"{n} {shown[n](b.values[n])} +/- {shown[n](b.errors[n]).lstrip('+')}" for n in b.names]
+    fit = (f"chi2 {b.chi2:.1f} / {b.dof}, p {b.p_value:.1e}" if b.dof > 0 else "no degree of freedom left")
+    scatter = (f"; the stops scatter {1e3 * b.tau_m:.3g} mm beyond their pixels' noise (stage repeatability, the "
+               "wall), taken into the errors" if b.tau_m > 0 else "")
+    return lines + [f"    bias model: {', '.join(parts)} ({fit}{scatter})"]
+
+
+def accuracy_json(a: Accuracy) -> dict[str, Any]:
+    """The `accuracy` part of rig.result/1 (docs/json.md)."""
+
+    def number(x: float) -> float | None:
+        return float(x) if math.isfinite(x) else None
+
+    b = a.bias
+    return {
+        "truth_source": a.truth_source if a.stops else None,
+        "stops": [{k: (number(v) if isinstance(v, float) else v) for k, v in asdict(s).items()} for s in a.stops],
+        "bias": None if b is None else {
+            "parameters": [{"name": n, "value": b.values[n], "error": b.errors[n], "unit": UNITS[n],
+                            "meaning": MEANING[n]} for n in b.names],
+            "covariance": {"parameters": list(b.names), "matrix": np.asarray(b.covariance).tolist()},
+            "chi2": b.chi2, "dof": b.dof, "p_value": number(b.p_value), "within_noise": b.within_noise,
+            "tau_m": b.tau_m, "fb_px_m": b.fb_px_m},
+    }
