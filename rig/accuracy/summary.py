@@ -19,6 +19,7 @@ class Accuracy:
 
     stops: tuple[StopAccuracy, ...]
     bias: BiasFit | None
+    why_not: str = ""  # why nothing was measured, in words ("" when it was, or when no stop's truth is known)
 
     @property
     def truth_source(self) -> str:
@@ -28,15 +29,26 @@ class Accuracy:
         return kinds[0] if len(kinds) == 1 else ", ".join(f"{k} ({sources.count(k)} stops)" for k in kinds)
 
 
-def accuracy_of(d: ModelData, var_m2: np.ndarray | None = None) -> Accuracy:
+#: the protocols whose wall is perpendicular to the optical axis: Z is the stop's distance at every pixel
+FLAT_ON = ("perpendicular", "import")
+TILTED_NOT_YET = ("the tilted protocol's wall is at an angle, and its plane is not modelled yet: measure accuracy on a "
+                  "perpendicular recording")
+
+
+def accuracy_of(d: ModelData, var_m2: np.ndarray | None = None, protocol: str = "perpendicular") -> Accuracy:
     """The accuracy of the recording `d` holds (`var_m2`: the noise model's variance of each row, see
-    `stop_accuracy`)."""
+    `stop_accuracy`); none for a protocol whose wall is not perpendicular (`why_not` says so)."""
+    if protocol not in FLAT_ON:
+        return Accuracy((), None, TILTED_NOT_YET if protocol == "tilted" else
+                        f"the {protocol} protocol's wall is not known to face the camera: accuracy is not measured")
     stops = stop_accuracy(d, var_m2)
     return Accuracy(tuple(stops), fit_bias(stops, d.fb_px_m))
 
 
 def accuracy_lines(a: Accuracy) -> list[str]:
     """The text report's lines (none when no stop's truth is known)."""
+    if a.why_not:
+        return [f"    accuracy: not measured; {a.why_not}"]
     if not a.stops:
         return []
     worst = max(a.stops, key=lambda s: abs(s.depth_accuracy_pct))
@@ -51,7 +63,8 @@ def accuracy_lines(a: Accuracy) -> list[str]:
     parts = [f"{n} {shown[n](b.values[n])} +/- {shown[n](b.errors[n]).lstrip('+')}" for n in b.names]
     fit = (f"chi2 {b.chi2:.1f} / {b.dof}, p {b.p_value:.1e}" if b.dof > 0 else "no degree of freedom left")
     scatter = (f"; the stops scatter {1e3 * b.tau_m:.3g} mm beyond their pixels' noise (stage repeatability, the "
-               "wall), taken into the errors" if b.tau_m > 0 else "")
+               "wall), taken into the errors" if not b.within_noise else
+               (": within the pixels' noise" if b.dof > 0 else ""))
     return lines + [f"    bias model: {', '.join(parts)} ({fit}{scatter})"]
 
 
@@ -63,7 +76,7 @@ def accuracy_json(a: Accuracy) -> dict[str, Any]:
 
     b = a.bias
     return {
-        "truth_source": a.truth_source if a.stops else None,
+        "truth_source": a.truth_source if a.stops else None, "why_not": a.why_not or None,
         "stops": [{k: (number(v) if isinstance(v, float) else v) for k, v in asdict(s).items()} for s in a.stops],
         "bias": None if b is None else {
             "parameters": [{"name": n, "value": b.values[n], "error": b.errors[n], "unit": UNITS[n],

@@ -103,7 +103,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             raise UsageError(str(e)) from None
         counter.step("headline error: every statistic the paper's fit predicts")
         h = headline(r.fit, r.samples.positive_variance())
-        acc = _accuracy(r.fit, r.samples)
+        acc = _accuracy(args.recording, r.fit, r.samples)
         counter.finish()
     if args.json:
         from ..accuracy import accuracy_json
@@ -151,7 +151,7 @@ def _fit_model(args: argparse.Namespace) -> int:
         counter.step("headline error: every statistic the model predicts")
         h = headline(f, d)
         nll = None if args.no_held_out else held_out_nll(model, d, f, counter=counter, jobs=max(1, args.jobs))
-        acc = _accuracy(f, d)
+        acc = _accuracy(args.recording, f, d)
         counter.finish()
     if args.json:
         from ..accuracy import accuracy_json
@@ -288,11 +288,15 @@ def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str]) -> None:
     print(f"report: {page}", file=sys.stderr if args.json else sys.stdout)
 
 
-def _accuracy(fit, d):
+def _accuracy(path, fit, d):
     """The recording's accuracy against the stage's truth (rig.accuracy), the spatial RMS's noise from `fit`."""
+    from protocols.recording import Recording
+
     from ..accuracy import accuracy_of
 
-    return accuracy_of(d, np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape))
+    with Recording(path) as rec:
+        protocol = rec.protocol
+    return accuracy_of(d, np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape), protocol)
 
 
 def _write_table(args: argparse.Namespace, fit, d, acc=None) -> None:
