@@ -87,6 +87,29 @@ class NoiseModel:
             out &= (a >= (-np.inf if lo is None else lo)) & (a <= (np.inf if hi is None else hi))
         return out
 
+    # -- the depth correction ----------------------------------------------------------------------
+    def corrected_depth(self, z_m: Any, *, with_error: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """The true depth, m, of a depth the camera reported as z_m, with its calibration bias taken out:
+        1 / ((1 + scale) / Z - disparity_offset_px / fb_px_m) (docs/noise-model.md, "The depth correction"); with
+        `with_error`, also its standard error over the two parameters' covariance (the delta method, exact
+        derivatives). A one-line NoiseModelError when the file carries no bias."""
+        b = self.doc.get("bias")
+        if not b:
+            raise NoiseModelError(f"{self.source} carries no depth correction; export it with rig export from a "
+                                  "perpendicular recording whose stops' distances are known (a stage, or the plan)")
+        p = {q["name"]: float(q["value"]) for q in b["parameters"]}
+        fb = float(b["fb_px_m"])
+        z = np.asarray(z_m, dtype=float)
+        inverse = (1.0 + p["scale"]) / z - p["disparity_offset_px"] / fb
+        t = 1.0 / inverse
+        if not with_error:
+            return t
+        g = {"scale": -t * t / z, "disparity_offset_px": t * t / fb}  # dT/dp = -T^2 d(1/T)/dp
+        names = b["covariance"]["parameters"]
+        c = np.asarray(b["covariance"]["matrix"], dtype=float)
+        var = sum(g[a] * g[bb] * c[i, j] for i, a in enumerate(names) for j, bb in enumerate(names))
+        return t, np.sqrt(np.maximum(var, 0.0))
+
     # -- sigma -----------------------------------------------------------------------------------
     def sigma(self, z_m: Any, u_px: Any, v_px: Any, *, with_error: bool = False,
               **inputs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:

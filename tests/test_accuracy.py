@@ -118,3 +118,31 @@ def test_rig_fit_gives_the_accuracy_in_text_json_and_table(recordings, tmp_path,
     # at 3 m the bias is about s t - delta t^2 / (f b): -12 mm here, and the model's within a millimetre of the median
     assert float(last["depth_accuracy_pct"]) < -0.3
     assert abs(float(last["model_bias_m"]) - float(last["depth_accuracy_pct"]) / 100 * float(last["truth_m"])) < 1e-3
+
+
+def test_the_exported_model_corrects_the_mean_depth_to_within_its_noise_at_every_stop(recordings, tmp_path):
+    from rig.noise_model import NoiseModel, NoiseModelError
+
+    path = recordings["miscalibrated"]
+    out = tmp_path / "model.json"
+    assert main(["export", str(path), "-o", str(out), "-q"]) == 0
+    doc = json.loads(out.read_text())
+    jsonschema.validate(doc, json.loads((ROOT / "docs" / "noise-model.schema.json").read_text()))
+    model = NoiseModel.load(out)
+    a = accuracy_of(ModelData.from_recording(path))
+    c = doc["bias"]["offset_m"]["value"]  # the rig's, not the camera's: the stage's zero to the camera's origin
+    for s in a.stops:
+        z = s.truth_m + s.mean_bias_m  # the stop's mean depth (the curvature of f b / d taken out)
+        corrected, se = model.corrected_depth(z, with_error=True)
+        noise = math.hypot(s.mean_bias_se_m, a.bias.tau_m)
+        assert abs(z - s.truth_m) > 5 * noise or s.truth_m < 1.5  # there was a bias to correct beyond 1.5 m
+        assert abs(corrected - c - s.truth_m) < 3 * math.hypot(noise, se), (s.stop, corrected - c - s.truth_m, noise)
+    # exact inverse: the model's own reading of a corrected depth is the depth
+    t = model.corrected_depth(np.array([0.6, 1.7, 2.9]))
+    b = {q["name"]: q["value"] for q in doc["bias"]["parameters"]}
+    fb = doc["bias"]["fb_px_m"]
+    np.testing.assert_allclose((1 + b["scale"]) * fb / (fb / t + b["disparity_offset_px"]), [0.6, 1.7, 2.9],
+                               rtol=8 * np.finfo(float).eps)  # a few roundings each way
+    doc["bias"] = None
+    with pytest.raises(NoiseModelError, match="carries no depth correction; export it"):
+        NoiseModel.from_dict(doc).corrected_depth(1.0)

@@ -85,3 +85,27 @@ def accuracy_json(a: Accuracy) -> dict[str, Any]:
             "chi2": b.chi2, "dof": b.dof, "p_value": number(b.p_value), "within_noise": b.within_noise,
             "tau_m": b.tau_m, "fb_px_m": b.fb_px_m},
     }
+
+
+def bias_export(a: Accuracy) -> dict[str, Any] | None:
+    """The `bias` of an exported noise model (docs/noise-model.md, "The depth correction"): the camera's own part of
+    the bias model (scale and disparity offset, with their covariance); the wall's offset belongs to the rig and is
+    given apart. None where no bias was fitted or it has no disparity offset (fewer than four stops)."""
+    b = a.bias
+    if b is None or "disparity_offset_px" not in b.names:
+        return None
+    own = ["scale", "disparity_offset_px"]
+    idx = [b.names.index(n) for n in own]
+    cov = np.asarray(b.covariance)[np.ix_(idx, idx)]
+    truths = [s.truth_m for s in b.stops]
+    return {
+        "formula": "Z_true = 1 / ((1 + scale) / Z - disparity_offset_px / fb_px_m)",
+        "parameters": [{"name": n, "value": b.values[n], "error": b.errors[n], "unit": UNITS[n], "meaning": MEANING[n]}
+                       for n in own],
+        "covariance": {"parameters": own, "matrix": cov.tolist()},
+        "fb_px_m": b.fb_px_m,
+        "offset_m": {"value": b.values["offset_m"], "error": b.errors["offset_m"], "meaning": MEANING["offset_m"]},
+        "truth_source": a.truth_source, "tau_m": b.tau_m, "within_noise": b.within_noise,
+        "valid_z_m": [min(truths), max(truths)],
+    }
+

@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from .options import refuse_unwritable
 from .usage import UsageError
 
@@ -40,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_export(args: argparse.Namespace) -> int:
     from protocols.recording import Recording
 
+    from ..accuracy import accuracy_of, bias_export
     from ..diagnosis import headline
     from ..models.parts.prediction import EffectStage
     from ..models.fitting.progress import ProgressCounter
@@ -81,7 +84,9 @@ def cmd_export(args: argparse.Namespace) -> int:
         h = headline(fit, d)
         counter.finish()
         with Recording(args.recording) as rec:
-            doc = noise_model_document(fit, d, rec, args.recording, h, notes)
+            var = np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape)
+            bias = bias_export(accuracy_of(d, var, rec.protocol))
+            doc = noise_model_document(fit, d, rec, args.recording, h, notes, bias)
     out.parent.mkdir(parents=True, exist_ok=True)  # a folder that does not exist yet is made, as for every output
     out.write_text(json.dumps(doc, indent=1) + "\n")
     stream = sys.stderr if args.json else sys.stdout

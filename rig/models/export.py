@@ -101,8 +101,10 @@ def _determined_covariance(fit: ModelFit, names: list[str]) -> np.ndarray:
 
 
 def noise_model_document(fit: ModelFit, d: ModelData, recording: Any, recording_path: str | Path,
-                         headline: Any = None, notes: list[str] | None = None) -> dict[str, Any]:
-    """The `rig.noise-model/1` document of `fit` (made on `d`, from the open `recording` at `recording_path`)."""
+                         headline: Any = None, notes: list[str] | None = None,
+                         bias: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The `rig.noise-model/1` document of `fit` (made on `d`, from the open `recording` at `recording_path`), with
+    the depth correction `bias` where the accuracy against the stage gave one (`rig.accuracy.bias_export`)."""
     model = fit.model
     names = [n for n, _ in model.free()]
     cov = _determined_covariance(fit, names)
@@ -141,5 +143,6 @@ def noise_model_document(fit: ModelFit, d: ModelData, recording: Any, recording_
                   "verdict": headline.verdict() if headline is not None else None,
                   "pixel_stops": int(len(d)), "samples": int(fit.n_samples)},
         "notes": words,
+        "bias": bias,
     }
     return doc
