@@ -103,6 +103,9 @@ def test_demo_small(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--frames", "10", "--width", "64"]) == 0
     text = capsys.readouterr().out
     assert "perpendicular active" in text and "perpendicular passive" in text
+    # accuracy beside precision: the simulated camera is calibrated, so no bias is found
+    assert text.count("accuracy against the stage measured distance: within") == 2, text
+    assert text.count("no calibration bias beyond noise") == 2, text
     assert (tmp_path / "sigma-vs-range.png").stat().st_size > 20_000
     assert (tmp_path / "perpendicular-active.h5").exists() and (tmp_path / "perpendicular-passive.h5").exists()
 

@@ -68,6 +68,25 @@ def accuracy_lines(a: Accuracy) -> list[str]:
     return lines + [f"    bias model: {', '.join(parts)} ({fit}{scatter})"]
 
 
+def accuracy_words(a: Accuracy) -> str:
+    """The accuracy in one line, beside the precision (the demo's)."""
+    if a.why_not or not a.stops:
+        return f"accuracy: not measured; {a.why_not or 'no stop says where the wall was'}"
+    worst = max(a.stops, key=lambda s: abs(s.depth_accuracy_pct))
+    line = (f"accuracy against the {a.truth_source} distance: within {abs(worst.depth_accuracy_pct):.3f} % at every "
+            f"stop (the worst, {worst.stop})")
+    b = a.bias
+    if b is None:
+        return line
+    found = [n for n in ("scale", "disparity_offset_px") if n in b.names and abs(b.values[n]) > 3 * b.errors[n]]
+    words = {"scale": lambda: f"scale {100 * b.values['scale']:+.3f} +/- {100 * b.errors['scale']:.3f} %",
+             "disparity_offset_px": lambda: (f"disparity offset {b.values['disparity_offset_px']:+.5f} +/- "
+                                             f"{b.errors['disparity_offset_px']:.5f} px")}
+    if not found:
+        return line + "; no calibration bias beyond noise (" + ", ".join(words[n]() for n in words if n in b.names) + ")"
+    return line + "; calibration bias: " + ", ".join(words[n]() for n in found) + " (rig export writes the correction)"
+
+
 def accuracy_json(a: Accuracy) -> dict[str, Any]:
     """The `accuracy` part of rig.result/1 (docs/json.md)."""
 
