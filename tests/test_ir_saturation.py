@@ -100,6 +100,20 @@ def test_saturated_pixels_have_no_brightness_and_stay_in_the_range_fit(tmp_path)
     assert np.allclose(d.ambient_ratio[clip], plain.ambient_ratio[clip], rtol=0.02, atol=0)
     bins, _ = _Layout.of(d).families(d)["brightness"]
     assert (bins[np.isnan(d.ir)] == -1).all() and (bins[np.isfinite(d.ir)] >= 0).all()
+    # the measured light (rig.models.data.pattern_light) where a pixel clipped: from the next stop as 1/Z^2, so at
+    # gain 4 about 4 times the gain-1 scene's, measured there directly. Not exactly: the fake camera's dots lose
+    # contrast with range (a bright cell's pattern light over a dim one's: 4.6 at 0.5 m, 3.7 at 1 m), so the bright
+    # dots, the ones that clip, are taken 6 % low from 1 m; 4.4 % at the median over the near stop, 5.3 % at its 90th
+    # percentile (a real camera's dots blur with range too: the fill is a floor, not the dot's own light)
+    from rig.models.data.pattern_light import light_note, light_rows
+
+    raw = near & ~np.isfinite(light_rows(ModelData.from_recording(clipped_file), 0.7))  # unsmoothed: clipped itself
+    ratio = light_rows(d, 1.0)[near] / (4.0 * light_rows(plain, 1.0)[near])
+    assert np.isfinite(ratio).all() and 0.93 < np.median(ratio) < 1.0 and np.percentile(np.abs(ratio - 1), 90) < 0.08
+    clipped = sum(src.light_clipped for src in d.sources)
+    assert clipped > 20 and sum(src.light_filled for src in d.sources) == clipped and not raw.any()
+    assert light_note(d).startswith(f"measured_light: the IR clipped at {clipped} pixel-stops; {clipped} take")
+    assert light_note(plain) is None
 
 
 def test_blind_diagnosis_with_saturated_ir_names_the_brightness_effect(tmp_path):

@@ -67,11 +67,16 @@ def _refuse_plot_format(path: str | None) -> None:
 
 
 def _model_notes(model, d) -> list[str]:
-    """Notes about fitting `model` to `d` (rig.diagnosis.base_mismatch: a base that does not fit the recording)."""
+    """Notes about fitting `model` to `d` (rig.diagnosis.base_mismatch: a base that does not fit the recording; the
+    measured light's clipped IR)."""
     from ..diagnosis import base_mismatch
 
-    note = base_mismatch(model, d)
-    return [note] if note else []
+    from ..models.data.pattern_light import light_note
+
+    notes = [base_mismatch(model, d)]
+    if any(e.name == "measured_light" for e in model.effects):
+        notes.append(light_note(d))
+    return [n for n in notes if n]
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

@@ -55,6 +55,9 @@ class StopSource:
     light_raw: np.ndarray | None = None
     #: light_raw smoothed, by window (px): computed when first asked for (`pattern_light.light_image`)
     light_smoothed: dict = field(default_factory=dict, repr=False)
+    #: pixels whose IR clipped, and of them those whose light came from another stop (`fill_clipped_light`)
+    light_clipped: int = 0
+    light_filled: int = 0
 
     @classmethod
     def of(cls, stop: StopData, keep: np.ndarray, cal: CameraCalibration, window_px: int) -> "StopSource":

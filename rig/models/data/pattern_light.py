@@ -29,11 +29,14 @@ KNOWN_SHARE = 0.5
 
 def fill_clipped_light(sources: list[StopSource]) -> None:
     """Where a stop's IR clipped (light_raw NaN), P from the same pixel at the nearest stop in range that saw it,
-    times (Z' / Z)^2 of the pixel's mean depths; in place. Pixels no stop saw unclipped stay NaN."""
+    times (Z' / Z)^2 of the pixel's mean depths; in place. Pixels no stop saw unclipped stay NaN. The pixel's own
+    value, not its neighbourhood's: the pixels that clip are the bright dots, and a local mean would take them for
+    average ones (0.65 of the truth on the fake camera's 5:1 dots, against 0.96 pixel by pixel)."""
     have = [s for s in sources if s.light_raw is not None and s.mean_m is not None]
     medians = {id(s): float(np.nanmedian(np.where(s.mean_m > 0, s.mean_m, np.nan))) for s in have}
     for s in have:
         todo = np.isnan(s.light_raw) & (s.mean_m > 0)
+        s.light_clipped = int(np.count_nonzero(todo))
         if not todo.any():
             continue
         out = s.light_raw.astype(np.float64)
@@ -42,7 +45,20 @@ def fill_clipped_light(sources: list[StopSource]) -> None:
             for o in others:  # nearest in range first: the least extrapolated
                 ok = todo & np.isnan(out) & np.isfinite(o.light_raw) & (o.light_raw > 0) & (o.mean_m > 0)
                 out[ok] = o.light_raw[ok] * (o.mean_m[ok] / s.mean_m[ok]) ** 2
+        s.light_filled = int(np.count_nonzero(todo & np.isfinite(out)))
         s.light_raw = out.astype(np.float32)
+
+
+def light_note(d) -> str | None:
+    """What the measured light did with clipped IR, in words (None where none clipped)."""
+    if d.sources is None:
+        return None
+    clipped = sum(s.light_clipped for s in d.sources)
+    if not clipped:
+        return None
+    filled = sum(s.light_filled for s in d.sources)
+    return (f"measured_light: the IR clipped at {clipped} pixel-stops; {filled} take the pattern light from the nearest "
+            f"stop that saw it, as 1/Z^2, and {clipped - filled} keep the base's law (no stop saw them unclipped)")
 
 
 def light_image(source: StopSource, window_px: float) -> np.ndarray | None:
@@ -52,14 +68,19 @@ def light_image(source: StopSource, window_px: float) -> np.ndarray | None:
         return None
     got = source.light_smoothed.get(window_px)
     if got is None:
-        known = np.isfinite(source.light_raw)
-        total = smoothed(np.where(known, source.light_raw, 0.0), window_px)
-        weight = smoothed(known.astype(np.float64), window_px)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            p = total / weight
-        got = np.where((weight >= KNOWN_SHARE) & (p > 0), p, np.nan).astype(np.float32)
-        source.light_smoothed[window_px] = got
+        got = source.light_smoothed[window_px] = _normalised(source.light_raw, window_px)
     return got
+
+
+def _normalised(light: np.ndarray, window_px: float) -> np.ndarray:
+    """`light` smoothed with the unknown (NaN) pixels left out of every average; NaN where less than KNOWN_SHARE of
+    the weight is known or the average is not positive (float32)."""
+    known = np.isfinite(light)
+    total = smoothed(np.where(known, light, 0.0), window_px)
+    weight = smoothed(known.astype(np.float64), window_px)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = total / weight
+    return np.where((weight >= KNOWN_SHARE) & (p > 0), p, np.nan).astype(np.float32)
 
 
 def light_rows(d, window_px: float) -> np.ndarray:
