@@ -282,3 +282,87 @@ def test_thermal_drift_shows_in_the_frame_means(tmp_path):
     assert np.all(np.diff(measured) > 0)
     measured, error, _ = offsets(base)
     assert np.sum((measured / error) ** 2) < 31.3
+
+
+def _stated_calibration(answer: dict) -> tuple[float, float, float, float]:
+    """(delta native px, e, w m, true f b native px * m) as answer.json states them."""
+    effect, camera = answer["effect"], answer["parameters"]["camera"]
+    return (effect["disparity_offset_native_px"], effect["baseline_scale_error"], effect["wall_offset_m"],
+            camera["native_f_px"] * camera["baseline_m"])
+
+
+@pytest.mark.parametrize("errors", [{}, {"disparity_offset_native_px": -0.2, "baseline_scale_error": -0.01}])
+def test_miscalibrated_depth_is_f_b_over_the_offset_disparity(tmp_path, errors):
+    """Z = f b / d (Huber et al. eq. 8): the baseline of the same seed reports Z_0 = f b / d, the miscalibrated camera
+    Z = (1 + e) f b / (d + delta), so 1 / Z = (1 / Z_0 + delta / (f b)) / (1 + e) for every pixel of every frame. In
+    counts x = Z / u that is x = g(x_0), g(x) = (1 + e) / (1 / x + delta u / (f b)); both are rounded to counts, so
+    |x - g(x_0)| <= 1/2 + g' / 2 with g' <= 1 + e (plus float rounding, ~1e-8 counts). The manifest states the
+    camera's own baseline, b (1 + e) (written with 12 significant digits)."""
+    base, _ = _render(tmp_path, "baseline", 3, **SMALL)
+    mis, answer = _render(tmp_path, "miscalibrated", 3, **SMALL, **errors)
+    delta, e, w, fb = _stated_calibration(answer)
+    assert w == 0.0 and (delta, e) == (errors.get("disparity_offset_native_px", 0.05),
+                                      errors.get("baseline_scale_error", 0.003))
+    assert _manifest(mis)["baseline_m"] == pytest.approx(answer["parameters"]["camera"]["baseline_m"] * (1 + e),
+                                                         rel=1e-11)
+    u = _manifest(mis)["depth_unit_m"]
+    for z in SMALL["stops_m"]:
+        x0, x = _stop(base, z)[0], _stop(mis, z)[0]
+        np.testing.assert_array_equal(x0 > 0, x > 0)
+        ok = x0 > 0
+        predicted = (1 + e) / (1 / x0[ok] + delta * u / fb)
+        assert np.max(np.abs(x[ok] - predicted)) <= 0.5 + 0.5 * (1 + max(e, 0.0)) + 1e-6
+
+
+def test_miscalibrated_without_errors_is_the_baseline(tmp_path):
+    """With delta = e = w = 0 the miscalibrated scene is the baseline of its seed, frame for frame, and states a
+    noise-free bias of exactly 0."""
+    base, _ = _render(tmp_path, "baseline", 3, **SMALL)
+    mis, answer = _render(tmp_path, "miscalibrated", 3, **SMALL, disparity_offset_native_px=0.0,
+                          baseline_scale_error=0.0)
+    assert _manifest(mis)["baseline_m"] == _manifest(base)["baseline_m"]
+    for z in SMALL["stops_m"]:
+        for kind in (0, 1):
+            np.testing.assert_array_equal(_stop(mis, z)[kind], _stop(base, z)[kind])
+    assert answer["effect"]["noise_free_bias_mm"] == [0.0, 0.0, 0.0]
+    assert answer["effect"]["first_order_bias_mm"] == [0.0, 0.0, 0.0]
+
+
+def test_miscalibrated_mean_depth_carries_the_stated_bias(tmp_path):
+    """Defaults plus the wall 20 mm beyond the stage (16x9 px, 30 frames). (1) Each stop's mean of all valid depths
+    less the stage's Z agrees with answer.json's expected bias within 4 standard errors (pixels and frames independent:
+    SE^2 = sum_i s_i^2 / (P^2 n)). (2) That expected bias is the textbook noise-free bias
+    (1 + e) f b / (f b / (Z + w) + delta) - Z computed here, plus the curvature of 1/d, Var(Z) / Z_nf per pixel
+    (second order of E[1/(d + n)]; the next term, ~5 (sigma_d / d)^4 Z, is below 0.01 mm here), with Var(Z) the
+    measured variance less the depth unit's u^2 / 12, within 4 standard errors of its mean (Var(s^2) = 2 s^4 / (n - 1)).
+    (3) The first-order bias it states is w + e Z - Z^2 delta / (f b) (the same operations: 1e-9 relative)."""
+    opts = {**SMALL, "frames_per_stop": 30, "wall_offset_m": 0.02}
+    mis, answer = _render(tmp_path, "miscalibrated", 4, **opts)
+    delta, e, w, fb = _stated_calibration(answer)
+    effect = answer["effect"]
+    u = _manifest(mis)["depth_unit_m"]
+    assert w == 0.02 and effect["stops_m"] == list(SMALL["stops_m"])
+    for i, z in enumerate(SMALL["stops_m"]):
+        depth = _stop(mis, z)[0] * u
+        ok = (depth > 0).all(axis=0)
+        samples = depth[:, ok]                                       # (n, P)
+        n, p = samples.shape
+        var = samples.var(axis=0, ddof=1)
+        measured = samples.mean() - z
+        se = np.sqrt(var.sum() / (p**2 * n))
+        expected = effect["expected_mean_bias_mm"][i] * 1e-3
+        assert abs(measured - expected) < 4 * se
+        noise_free = (1 + e) * fb / (fb / (z + w) + delta) - z
+        z_nf = z + noise_free
+        curvature = (var - u**2 / 12).mean() / z_nf
+        curvature_se = np.sqrt(np.sum(2 * var**2 / (n - 1))) / p / z_nf
+        assert abs(expected - noise_free - curvature) < 4 * curvature_se
+        assert effect["first_order_bias_mm"][i] * 1e-3 == pytest.approx(w + e * z - z**2 * delta / fb, rel=1e-9)
+
+
+def test_miscalibrated_refuses_impossible_errors(tmp_path):
+    with pytest.raises(ValueError, match="baseline_scale_error = -1 makes the camera's baseline non-positive"):
+        SCENES["miscalibrated"](1, tmp_path, baseline_scale_error=-1.0, **SMALL)
+    with pytest.raises(ValueError, match="wall_offset_m = -0.6 puts the wall behind the camera at the 0.5 m stop"):
+        SCENES["miscalibrated"](1, tmp_path, wall_offset_m=-0.6, **SMALL)
+    assert not any(tmp_path.iterdir())

@@ -9,7 +9,8 @@ Z = f b / d, the projector's light falling as Z^-2); Intel RealSense D400 datash
 (projector: VCSEL, 850 nm, 360 mW, 86 x 57 deg; f/2.0; 50 mm baseline); Intel's white papers "Subpixel Linearity
 Improvement for D400" (f = 0.5 X_res / tan(HFOV/2), HFOV 90 deg) and "Tuning depth cameras for best performance";
 optics texts for the camera equation and the cosine-fourth law (Smith, "Modern Optical Engineering"); Newton's law
-of cooling for the warm-up. The physics of each step is in the module that computes it; README.md lists the scenes.
+of cooling for the warm-up; librealsense's rs_device.h (tare and focal-length self-calibration) for the calibration
+errors. The physics of each step is in the module that computes it; README.md lists the scenes.
 
     from fakes.outside import SCENES
     folder = SCENES["gaussian_spot"](1, Path("scenes"))     # scenes/gaussian_spot-seed1/ + .answer.json

@@ -2,8 +2,9 @@
 variance of the depth over a stop, and the (k, lambda) that a maximum-likelihood fit of sigma_Z = k Z^lambda converges
 to on those moments (Huber et al. sec. III-C, with n - 1 degrees of freedom a pixel).
 
-Moments of Z = f b / d for d ~ N(d0 + delta_d(t), sigma_d^2) by Gauss-Hermite quadrature (exact for the smooth
-1/d while sigma_d << d0; the delta method sigma_Z = Z^2 sigma_d / (f b) is its first order). A frame-varying offset
+Moments of Z = f b / d for d ~ N(d0 + delta_d(t), sigma_d^2) by Gauss-Hermite quadrature (exact for the smooth 1/d
+while sigma_d << d0; the delta method sigma_Z = Z^2 sigma_d / (f b) is its first order); a miscalibrated camera
+(calibration.py) reports (1 + e) f b / d with its constant offset delta in d. A frame-varying offset
 delta_d(t) adds the variance of the frame means (law of total variance). Rounding to a depth unit u adds u^2 / 12
 (Sheppard's correction; accurate when sigma_Z > u).
 """
@@ -28,10 +29,11 @@ class StopMoments:
 def stop_moments(sweep: Sweep, index: int, maps: StopMaps, n_nodes: int = 24) -> StopMoments:
     nodes, weights = np.polynomial.hermite_e.hermegauss(n_nodes)
     weights = weights / weights.sum()
-    offsets = sweep.drift.offset_px(sweep.clock.frame_times_s(index, sweep.frames_per_stop))
+    offsets = (sweep.drift.offset_px(sweep.clock.frame_times_s(index, sweep.frames_per_stop))
+               + sweep.miscalibration.disparity_offset_px)
     d = (maps.disparity_px + offsets[:, None, None, None]
          + maps.sigma_d_px[None, :, :, None] * nodes[None, None, None, :])
-    z = sweep.fb_px_m / d
+    z = sweep.reported_fb_px_m / d
     frame_mean = (z * weights).sum(axis=-1)
     frame_var = (z**2 * weights).sum(axis=-1) - frame_mean**2
     mean = frame_mean.mean(axis=0)

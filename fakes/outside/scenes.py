@@ -1,4 +1,5 @@
-"""The six scenes: the base physics (`baseline`) and the base physics plus one physical effect each.
+"""The seven scenes: the base physics (`baseline`) and the base physics plus one physical effect each (`miscalibrated`:
+two calibration errors and, optionally, the stage's zero).
 
 Every scene is a function (seed, out_dir, **options) -> Path that writes `out_dir/<scene>-seed<seed>/` (a folder
 `rig import` reads) and `out_dir/<scene>-seed<seed>.answer.json` (the physics, its parameters and what it predicts).
@@ -14,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from .calibration import Miscalibration
 from .dots import DotPattern
 from .expectation import population_fit, stop_moments
 from .folder import stop_label, write_answer, write_manifest, write_stop
@@ -65,7 +67,8 @@ def _check_options(scene: str, options: dict, own: tuple[str, ...]) -> None:
                          f"{', '.join(COMMON_OPTIONS + own)}")
 
 
-def _render(name: str, seed: int, out_dir: Path, sweep: Sweep, effect: dict | None) -> Path:
+def _render(name: str, seed: int, out_dir: Path, sweep: Sweep, effect: dict | None, bias: bool = False) -> Path:
+    """Writes the scene; with bias, the effect also states the expected bias of each stop's mean depth."""
     out_dir = Path(out_dir)
     folder = out_dir / f"{name}-seed{seed}"
     if folder.exists() and any(folder.iterdir()):
@@ -80,7 +83,10 @@ def _render(name: str, seed: int, out_dir: Path, sweep: Sweep, effect: dict | No
         write_stop(folder, z_m, depth, ir)
         moments.append(stop_moments(_expectation_sweep(sweep), index, maps))
         stops.append(_stop_summary(sweep, maps, depth, ir, moments[-1]))
-    write_manifest(folder, sweep.camera.intrinsics(), sweep.camera.baseline_m, sweep.depth_unit_m,
+    if bias:
+        effect = {**effect, **_expected_bias(sweep, moments)}
+    write_manifest(folder, sweep.camera.intrinsics(),
+                   sweep.miscalibration.reported_baseline_m(sweep.camera.baseline_m), sweep.depth_unit_m,
                    sweep.imager.exposure_us, gain=16.0, camera_model=f"fakes.outside {name} (D435-like, simulated)")
     k, lam = population_fit(moments, sweep.frames_per_stop - 1)
     answer = {
@@ -104,6 +110,22 @@ def _render(name: str, seed: int, out_dir: Path, sweep: Sweep, effect: dict | No
     return folder
 
 
+def _expected_bias(sweep: Sweep, moments: list) -> dict:
+    """Per stop (mm): the mean over the valid pixels of each pixel's expected depth (its quadrature mean) less the
+    stage's reading; the noise-free bias and its first order (calibration.py) beside it."""
+    fb, cal = sweep.fb_px_m, sweep.miscalibration
+    return {
+        "stops_m": list(sweep.stops_m),
+        "expected_mean_bias_mm": [1e3 * (float(np.nanmean(m.mean_m)) - z) for m, z in zip(moments, sweep.stops_m)],
+        "noise_free_bias_mm": [1e3 * cal.noise_free_bias_m(fb, z) for z in sweep.stops_m],
+        "first_order_bias_mm": [1e3 * cal.first_order_bias_m(fb, z) for z in sweep.stops_m],
+        "expected_mean_bias_how": "mean over the valid pixels of each pixel's expected reported depth (Gauss-Hermite "
+                                  "quadrature of (1 + e) f b / (f b / (Z + w) + delta + sigma_d N(0, 1)), "
+                                  "fakes/outside/expectation.py) less the stage's Z; the mean of every valid frame's "
+                                  "depth converges to it (rounding to the depth unit adds no bias while sigma_Z > u)",
+    }
+
+
 def _expectation_sweep(sweep: Sweep) -> Sweep:
     """Without drift every frame of a stop has the same distribution: one frame suffices for the moments."""
     return sweep if sweep.drift.amplitude_px else replace(sweep, frames_per_stop=1)
@@ -111,7 +133,7 @@ def _expectation_sweep(sweep: Sweep) -> Sweep:
 
 def _stop_summary(sweep: Sweep, maps: StopMaps, depth: np.ndarray, ir: np.ndarray, moments) -> dict:
     valid = maps.valid
-    sigma_z_delta = maps.z_m**2 * maps.sigma_d_px / sweep.fb_px_m        # delta method, Huber et al. eq. 9
+    sigma_z_delta = maps.wall_z_m**2 * maps.sigma_d_px / sweep.fb_px_m   # delta method, Huber et al. eq. 9
     return {
         "z_m": maps.z_m, "label": stop_label(maps.z_m),
         "disparity_native_px": maps.disparity_px,
@@ -227,6 +249,36 @@ def thermal_drift(seed: int, out_dir: Path, **options) -> Path:
         "drift_amplitude_px": amplitude, "drift_tau_s": tau, "fps": sweep.clock.fps, "move_s": sweep.clock.move_s})
 
 
+def miscalibrated(seed: int, out_dir: Path, **options) -> Path:
+    """The camera is miscalibrated: every disparity is off by disparity_offset_native_px (0.05 native px), its f b is
+    (1 + baseline_scale_error) (1.003) times the true one, and the wall sits wall_offset_m (0.0) beyond the stage's
+    reading. The manifest carries the camera's own baseline, b (1 + e)."""
+    own = ("disparity_offset_native_px", "baseline_scale_error", "wall_offset_m")
+    _check_options("miscalibrated", options, own)
+    cal = Miscalibration(disparity_offset_px=float(options.pop("disparity_offset_native_px", 0.05)),
+                         fb_scale_error=float(options.pop("baseline_scale_error", 0.003)),
+                         wall_offset_m=float(options.pop("wall_offset_m", 0.0)))
+    sweep = replace(_base_sweep(options), miscalibration=cal)
+    if min(sweep.stops_m) + cal.wall_offset_m <= 0:
+        raise ValueError(f"wall_offset_m = {cal.wall_offset_m:g} puts the wall behind the camera at the "
+                         f"{min(sweep.stops_m):g} m stop; give an offset above {-min(sweep.stops_m):g} m")
+    b = sweep.camera.baseline_m
+    return _render("miscalibrated", seed, out_dir, sweep, {
+        "name": "miscalibrated",
+        "physics": "the matcher's disparity is off by a constant delta (a right principal point off by delta px: the "
+                   "absolute error Intel's tare calibration adjusts against a flat target at a known distance), and "
+                   "the camera divides by an f b (1 + e) times the true one (a baseline off by e; the manifest "
+                   "states the camera's baseline b (1 + e)); the wall is w farther "
+                   "than the stage's reading says. The mean depth reads w + e Z - Z^2 delta / (f b) off the stage's "
+                   "Z to first order, plus the baseline's small curvature of 1/d, + Var(Z) / Z",
+        "formulas": ["d = f b / (Z + w) + delta + sigma_d N(0, 1)", "Z_reported = (1 + e) f b / d",
+                     "noise-free bias = (1 + e) f b / (f b / (Z + w) + delta) - Z ~ w + e Z - Z^2 delta / (f b)",
+                     "1 / Z_reported = (1 / Z_calibrated + delta / (f b)) / (1 + e) frame by frame (w = 0)"],
+        "disparity_offset_native_px": cal.disparity_offset_px, "baseline_scale_error": cal.fb_scale_error,
+        "wall_offset_m": cal.wall_offset_m, "true_baseline_m": b, "reported_baseline_m": cal.reported_baseline_m(b),
+        "native_f_px": sweep.camera.native_f_px}, bias=True)
+
+
 SCENES: dict[str, Callable[..., Path]] = {
     "baseline": baseline,
     "gaussian_spot": gaussian_spot,
@@ -234,4 +286,5 @@ SCENES: dict[str, Callable[..., Path]] = {
     "ir_vignetting": ir_vignetting,
     "printed_albedo": printed_albedo,
     "thermal_drift": thermal_drift,
+    "miscalibrated": miscalibrated,
 }
