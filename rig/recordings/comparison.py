@@ -36,6 +36,16 @@ MEANING = {
                "the projector's, or the geometry",
                "something changes how the error grows with range from run to run: light that is not the projector's "
                "(room light, daylight through a window), or the geometry (the mount, the wall)"),
+    "bias.scale": ("the depth scale differs: the camera's calibration (baseline, focal length) or its temperature",
+                   "the depth scale changes from run to run: the camera's temperature (let it warm up) or a "
+                   "recalibration between runs"),
+    "bias.disparity_offset_px": ("the disparity offset differs: the camera's calibration (rectification) or the "
+                                 "matcher's subpixel bias under other light",
+                                 "the disparity offset changes from run to run: warm-up (let the camera warm up), "
+                                 "or a calibration run between them"),
+    "bias.offset_m": ("the wall's offset from the camera differs: the camera was mounted again, or the stage homed "
+                      "elsewhere", "the mount or the stage's home moves between runs (check the mount; home the "
+                      "stage before each run)"),
 }
 
 
@@ -229,7 +239,8 @@ def _attribute(d: Difference, pair: Pair) -> None:
 
 def differences(results: list[RecordingResult]) -> list[Pair]:
     """Each pair of fitted recordings: its set-up differences, and the differences of the free parameters both fits
-    have (a verdict in standard errors only where the model fits both within noise)."""
+    have (a verdict in standard errors only where the model fits both within noise; the bias against the stage's
+    truth, `bias.*`, always)."""
     fitted = [r for r in results if not r.error]
     out = []
     for a, b in itertools.combinations(fitted, 2):
@@ -240,8 +251,11 @@ def differences(results: list[RecordingResult]) -> list[Pair]:
             se = math.hypot(a.errors.get(n, math.nan), b.errors.get(n, math.nan))
             z = (a.values[n] - b.values[n]) / se if se > 0 else math.nan
             p = float(2 * norm.sf(abs(z))) if math.isfinite(z) else math.nan
-            d = Difference(n, a, b, z, p, (math.isfinite(p) and p < threshold) if pair.judged else None)
-            if pair.judged:
+            # the bias is fitted to the stops' mean depth with its own errors (rig.accuracy, the stops' scatter taken
+            # in): judged whether or not the noise model fits
+            judged = pair.judged or n.startswith("bias.")
+            d = Difference(n, a, b, z, p, (math.isfinite(p) and p < threshold) if judged else None)
+            if judged:
                 _geometry(d, threshold)
                 _attribute(d, pair)
             pair.parameters.append(d)

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..accuracy.bias import UNITS
+from ..accuracy.summary import accuracy_of
 from ..models import parse_model
 from ..models.export import noise_model_document
 from ..noise_model import NoiseModel, NoiseModelError
@@ -86,10 +88,19 @@ def summarise(path: str, fit, d, h, measured, rec, notes: list[str], projector_o
     started = str(rec.attrs.get("started_utc", ""))
     camera = f"{rec.attrs.get('camera_model', '')} {rec.attrs.get('camera_serial', '')}".strip()
     z, sigma, label = axis_curve(fit, d, rec, measured.z_m)
+    values = {k: float(v) for k, v in fit.values.items()}
+    errors = {n: float(fit.errors.get(n, float("nan"))) for n, _ in fit.model.free()}
+    free = [n for n, _ in fit.model.free()]
+    units = {n: p.unit for n, p in fit.model.parameters()}
+    bias = accuracy_of(d, np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape),
+                       rec.protocol).bias
+    if bias is not None:  # the calibration bias against the stage: compared and scattered as the noise's parameters
+        for n in bias.names:
+            values[f"bias.{n}"], errors[f"bias.{n}"], units[f"bias.{n}"] = bias.values[n], bias.errors[n], UNITS[n]
+            free.append(f"bias.{n}")
     return RecordingResult(
-        str(path), fit.model.name, projector_on, {k: float(v) for k, v in fit.values.items()},
-        {n: float(fit.errors.get(n, float("nan"))) for n, _ in fit.model.free()}, [n for n, _ in fit.model.free()],
-        {n: p.unit for n, p in fit.model.parameters()}, int(fit.n_obs), float(h.error_pct), float(h.noise_pct),
+        str(path), fit.model.name, projector_on, values, errors, free, units, int(fit.n_obs), float(h.error_pct),
+        float(h.noise_pct),
         h.verdict(), [float(x) for x in measured.z_m], [float(x) for x in measured.sigma_m],
         [float(x) for x in measured.se_sigma_m], z, sigma, label, list(notes), started, camera, setup=read_setup(rec))
 
