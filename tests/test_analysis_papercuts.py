@@ -177,3 +177,34 @@ def test_a_window_that_keeps_no_pixel_is_named(small_recording, capsys, window, 
 def test_a_negative_seed_names_the_option(tmp_path, capsys):
     assert main(["simulate", "--scenario", "hidden", "--seed", "-1", str(tmp_path / "x.h5")]) == 2
     one_line(capsys, "--seed -1", "0 or more")
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["fit", "x.h5", "--jobs", "0"], "argument --jobs: 0 is not a count of processes; give 1 or more"),
+    (["compare", "x.h5", "y.h5", "--jobs", "-1"], "argument --jobs: -1 is not a count of processes; give 1 or more"),
+    (["validate-diagnosis", "--seeds", "0"], "argument --seeds: 0 is not a count of seeds; give 1 or more"),
+    (["simulate", "--frames", "1", "s.h5"], "argument --frames: 1 is not a count of frames a stop; give 2 or more"),
+    (["demo", "--frames", "two"], "argument --frames: 'two' is not a whole number; give frames a stop as 2 or more"),
+])
+def test_a_count_below_its_least_is_one_line_naming_the_least(argv, words, capsys, tmp_path, monkeypatch):
+    """issue 51: --jobs 0 and -1 were accepted, --seeds 0 printed an empty table and exited 0, --frames 1 was a
+    traceback from the statistics."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith(words), err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_simulate_refuses_a_folder_and_an_existing_recording(tmp_path, capsys):
+    """issue 51: `rig simulate adir` was an IsADirectoryError traceback, and an existing recording was overwritten
+    (rig run refuses)."""
+    assert main(["simulate", "--seed", "1", str(tmp_path)]) == 2
+    assert f"{tmp_path} is a folder; give the recording's file name" in capsys.readouterr().err
+    old = tmp_path / "old.h5"
+    old.write_bytes(b"a lab's recording")
+    assert main(["simulate", "--seed", "1", str(old)]) == 2
+    assert "exists; remove it or give another file name (rig simulate does not overwrite)" in capsys.readouterr().err
+    assert old.read_bytes() == b"a lab's recording"

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .options import QUIET, verbosity
+from .options import QUIET, at_least, refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the recording commands to the `rig` parser."""
     p = sub.add_parser("demo", help="simulated perpendicular experiments (projector on and off), fitted and plotted")
     p.add_argument("--out", default="rig-output", help="output folder (default rig-output/)")
-    p.add_argument("--frames", type=int, default=300, help="frames per stop (default 300)")
+    p.add_argument("--frames", type=at_least(2, "frames a stop"), default=300, help="frames per stop (default 300)")
     p.add_argument("--width", type=int, default=424, help="simulated image width in px (default 424, half of 848)")
     p.add_argument("--full-resolution", action="store_true", help="simulate the full 848x480 image (slower)")
     p.add_argument("--depth-unit-mm", type=float, default=0.1, help="depth unit of the simulated camera (default 0.1 mm)")
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--effect", help="hide this effect instead of the seed's choice (for validation)")
     p.add_argument("--width", type=int, default=106)
-    p.add_argument("--frames", type=int, default=100)
+    p.add_argument("--frames", type=at_least(2, "frames a stop"), default=100)
     p.set_defaults(func=cmd_simulate)
 
     from drivers.folder.manifest import MANIFEST_NAME
@@ -171,6 +171,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     if args.scenario != "hidden":
         raise UsageError(f"unknown scenario {args.scenario!r}; the one scenario is 'hidden'")
+    out = Path(args.output)
+    if out.is_dir():
+        raise UsageError(f"{out} is a folder; give the recording's file name, e.g. {out / 'hidden.h5'}")
+    if out.exists():  # as rig run: a recording is never overwritten
+        raise UsageError(f"{out} exists; remove it or give another file name (rig simulate does not overwrite)")
+    refuse_unwritable(out, "OUTPUT")
     try:
         sc = hidden_scenario(args.seed, args.effect, width=args.width, frames=args.frames)
     except ValueError as e:

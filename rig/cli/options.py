@@ -15,6 +15,23 @@ from .usage import UsageError
 #: the exit status of a command that worked but fitted a lambda the data do not determine (rig.models.data.determinacy)
 EXIT_UNDETERMINED = 3
 
+def at_least(low: int, what: str):
+    """An argparse type: a whole number of at least `low`, else a one-line error naming `what` it counts and the fix
+    (`--jobs 0` -> "0 is not a count of processes; give 1 or more")."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give {what} as {low} or more") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"{value} is not a count of {what}; give {low} or more")
+        return value
+
+    parse.__name__ = "count"  # argparse names the type in its messages
+    return parse
+
+
 QUIET = -1
 NORMAL = 0
 VERBOSE = 1

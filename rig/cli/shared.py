@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from .options import verbosity
+from .options import at_least, verbosity
 from .usage import UsageError
 
 
@@ -18,7 +18,7 @@ def shared_options(several: bool = False) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the result as JSON (docs/json.md)")
     p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
                    help="load effects you wrote (a Python file of @register classes; docs/effects.md); may be repeated")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--jobs", type=at_least(1, "processes"), default=os.cpu_count() or 1,
                    help="processes for the work that runs in parallel: the held-out score's refits, --many, the "
                         "diagnosis's candidate effects (default: one per core)")
     return p

@@ -14,7 +14,7 @@ from typing import TextIO
 
 from drivers.camera import CameraSettings
 
-from .options import refuse_unwritable, verbosity
+from .options import at_least, refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Simulate the paper's window-by-window fits: does a noise floor or censoring "
                                    "explain the fall of the active lambda towards 3 m?")
     p.add_argument("--out", default="rig-output", help="folder for the recordings (default rig-output/)")
-    p.add_argument("--frames", type=int, default=100, help="frames per stop (default 100)")
+    p.add_argument("--frames", type=at_least(2, "frames a stop"), default=100, help="frames per stop (default 100)")
     p.add_argument("--width", type=int, default=106, help="simulated image width in px (default 106, 848/8)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the first scenario (default 0)")
     p.set_defaults(func=cmd_paper_windows)
@@ -55,14 +55,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate-diagnosis", help="blind test of rig diagnose on hidden-effect simulations",
                        description="Does `rig diagnose` find effects nobody told it about? Records hidden-effect "
                                    "scenarios, diagnoses each blind and tabulates the results.")
-    p.add_argument("--seeds", type=int, default=10, help="seeds per effect (default 10)")
+    p.add_argument("--seeds", type=at_least(1, "seeds"), default=10, help="seeds per effect (default 10)")
     p.add_argument("--first-seed", type=int, default=1000)
     # the default is filled in by cmd_validate: the scenarios' module loads the fake camera and numba (0.4 s), which
     # building the parser for every command must not
     p.add_argument("--effects", default=None,
                    help="comma-separated scenarios (default: all: none, each catalogue effect, a coarse depth unit, "
                         "pairs, effects the catalogue lacks, frames not independent, IR saturated near the wall)")
-    p.add_argument("--jobs", type=int, help="trials at a time, in parallel processes (default: one per core)")
+    p.add_argument("--jobs", type=at_least(1, "processes"),
+                   help="trials at a time, in parallel processes (default: one per core)")
     p.add_argument("--json", help="also write the trials here")
     p.set_defaults(func=cmd_validate)
 
