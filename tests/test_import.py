@@ -247,6 +247,19 @@ def _wrong_unit(src):
             "probably the wrong unit: depth_unit_m = 5e-05 (0.05 mm) would fit"]
 
 
+def _baseline_in_mm(src):
+    text = (src / MANIFEST_NAME).read_text()
+    (src / MANIFEST_NAME).write_text("\n".join("baseline_m = 50" if line.startswith("baseline_m") else line
+                                               for line in text.splitlines()))
+    return "baseline_m = 50 m is more than a stereo camera's 1 m; give it in metres (a D435's is 0.050: 0.05 if"
+
+
+def _negative_focal_length(src):
+    text = (src / MANIFEST_NAME).read_text()
+    (src / MANIFEST_NAME).write_text("\n".join("fx = -5" if line.startswith("fx") else line for line in text.splitlines()))
+    return "fx = -5; it must be a positive number"
+
+
 def _principal_point_outside(src):
     text = (src / MANIFEST_NAME).read_text()
     (src / MANIFEST_NAME).write_text("\n".join("cx = 423.5" if line.startswith("cx") else line for line in text.splitlines()))
@@ -287,6 +300,7 @@ def _npy_out_of_range(src):
 
 @pytest.mark.parametrize("spoil", [_resize, _eight_bit, _colour, _one_frame, _no_distance,
                                    _table_names_a_missing_folder, _distance_not_in_name, _wrong_unit,
+                                   _baseline_in_mm, _negative_focal_length,
                                    _principal_point_outside, _bad_toml, _garbage, _truncated_last, _bad_npy, _float_npy, _npy_out_of_range])
 def test_bad_input_stops_with_one_line_and_leaves_no_file(live, tmp_path, spoil):
     src = dump(live, tmp_path / "frames", frames=3)

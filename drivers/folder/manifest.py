@@ -78,10 +78,20 @@ def load_settings(src: Path, overrides: dict[str, Any] | None = None) -> tuple[I
     return _validated(merged, where), manifest
 
 
+#: the largest stereo baseline and depth unit a depth camera has (m): beyond them, a number in mm written as metres
+MOST_BASELINE_M = 1.0
+MOST_DEPTH_UNIT_M = 0.01
+
+
 def _validated(m: dict[str, Any], where: Path) -> ImportSettings:
     values: dict[str, Any] = {}
     for key in ("fx", "fy", "baseline_m", "depth_unit_m"):
         values[key] = _number(m, key, where, positive=True)
+    for key, most, example in (("baseline_m", MOST_BASELINE_M, "a D435's is 0.050"),
+                               ("depth_unit_m", MOST_DEPTH_UNIT_M, "0.001 for 1 mm, 0.0001 for 0.1 mm")):
+        if values[key] > most:  # millimetres written as metres, most likely
+            raise FolderImportError(f"{where}: {key} = {values[key]:g} m is more than a stereo camera's {most:g} m; "
+                                    f"give it in metres ({example}: {values[key] / 1000:g} if that was mm)")
     for key in ("cx", "cy"):
         values[key] = _number(m, key, where)
     for key in ("exposure_us", "gain"):
