@@ -369,3 +369,31 @@ class BaselineError(Effect):
 
     def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
         d_px /= np.float32(1.0 + self.scale)  # Z = (1 + scale) f b / d: the same as d / (1 + scale) at the true f b
+
+
+@register
+@dataclass
+class RadialDisparity(Effect):
+    """A residual radial error of the rectification: the disparity is off by `coefficient_px` rho^2 (rho the pixel's
+    normalised radius, native px): the depth's bias is a bowl over the image, growing as Z^2 rho^2."""
+
+    name: ClassVar[str] = "radial_disparity"
+    coefficient_px: float = 0.1
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        rho2 = ctx.field.xn**2 + ctx.field.yn**2
+        d_px += (self.coefficient_px * ctx.field.px_scale * rho2).astype(np.float32)
+
+
+@register
+@dataclass
+class DisparityWarmup(Effect):
+    """A camera still warming up: its disparity is off by `offset_px` exp(-t / `time_constant_s`) (native px; t the
+    time since the camera was opened), a bias that fades over the first stops whatever their range."""
+
+    name: ClassVar[str] = "disparity_warmup"
+    offset_px: float = 0.1
+    time_constant_s: float = 20.0
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        d_px += np.float32(self.offset_px * ctx.field.px_scale * np.exp(-ctx.time_s / self.time_constant_s))

@@ -43,6 +43,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", metavar="DIR", help="several recordings: also write compare.html and its plot in DIR")
     p.set_defaults(func=cmd_compare)
 
+    p = sub.add_parser("accuracy", parents=[shared_options()],
+                       help="the depth against the stage's truth: each stop's figures and the bias loop")
+    p.set_defaults(func=cmd_accuracy)
+
     p = sub.add_parser("diagnose", parents=[shared], help="where the model fails and which physical effect is most likely missing")
     p.add_argument("--model", help="model to start from (default: active with the projector on, passive without)")
     p.add_argument("--out", help="folder for the plots and the HTML report (default: RECORDING-diagnosis/)")
@@ -280,6 +284,45 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(render_text(diag))
     print(f"\nPlots: {', '.join(str(p) for p in plots)}\nReport: {page}")
     return status
+
+
+def cmd_accuracy(args: argparse.Namespace) -> int:
+    """`rig accuracy REC`: each stop's accuracy against the stage (rig.accuracy) and the bias loop: which calibration
+    effect is missing, added one at a time while the evidence is very strong."""
+    from protocols.recording import Recording
+
+    from ..accuracy import accuracy_json, accuracy_lines, accuracy_of
+    from ..accuracy.bias_loop import bias_groups, diagnose_bias
+    from ..accuracy.path_text import bias_path_json, bias_path_lines
+
+    with progress_line(args, "rig accuracy"):
+        d, notes = model_data(args.recording)
+        with Recording(args.recording) as rec:
+            protocol = rec.protocol
+        acc = accuracy_of(d, None, protocol)
+        groups = bias_groups(d) if not acc.why_not else None
+        dg = diagnose_bias(groups) if groups is not None else None
+    if args.json:
+        import json
+
+        doc = {"schema": "rig.accuracy/1", "file": str(args.recording), "notes": notes, "accuracy": accuracy_json(acc),
+               "bias_path": bias_path_json(dg) if dg is not None else None}
+        print(json.dumps(doc, indent=1))
+        return 0
+    for note in notes:
+        print(f"note: {note}")
+    print(f"Accuracy of {args.recording} against the stage's truth")
+    for s in acc.stops:
+        print(f"  {s.stop}: truth {s.truth_m:.4f} m ({s.truth_source}), depth accuracy {s.depth_accuracy_pct:+.3f} % "
+              f"(+/- {s.depth_accuracy_se_pct:.3f}), spatial RMS {1e3 * s.spatial_rms_m:.3g} mm (noise alone "
+              f"{1e3 * s.spatial_rms_noise_m:.3g} mm), fill {100 * s.fill_rate:.1f} %")
+    for line in accuracy_lines(acc):
+        print(line.strip())
+    if dg is None:
+        print("The bias loop needs three stops or more whose distance is known, on a wall facing the camera.")
+        return 0
+    print("\n".join(bias_path_lines(dg)))
+    return 0
 
 
 def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str]) -> None:

@@ -95,8 +95,18 @@ OUTSIDE: dict[str, tuple[str, ...]] = {
     "outside_printed_albedo": ("brightness", "position"),
     "outside_thermal_drift": ("time",),
 }
+#: miscalibrations of the fake camera (fakes/effects.py) the bias loop must name (`rig.accuracy.bias_loop`): the
+#: fake's effect, its parameters' draw, and the bias effect that describes it
+BIAS: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], str]] = {
+    "disparity_offset": (lambda r: {"offset_px": r.uniform(0.03, 0.08)}, "disparity_offset"),
+    "baseline_error": (lambda r: {"scale": r.uniform(0.002, 0.005)}, "scale"),
+    "radial_disparity": (lambda r: {"coefficient_px": r.uniform(0.05, 0.15)}, "radial_disparity"),
+    "disparity_warmup": (lambda r: {"offset_px": r.uniform(0.1, 0.2), "time_constant_s": r.uniform(15.0, 40.0)},
+                         "warmup"),
+}
 #: every scenario the blind test runs
-ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE]
+ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE,
+                 *BIAS]
 
 
 @dataclass(frozen=True)
@@ -108,9 +118,12 @@ class Expected:
     covariates: tuple[str, ...] = ()
     not_independent: bool = False  # frames correlated: "frames not independent", never "within noise"
     outside: bool = False  # a scene of fakes/outside: within noise at the end, by whatever path
+    bias: bool = False  # a miscalibration: the bias loop names `named` first and ends within noise
 
     @property
     def kind(self) -> str:
+        if self.bias:
+            return "bias"
         if self.not_independent:
             return "independence"
         if self.outside:
@@ -119,6 +132,8 @@ class Expected:
 
 
 def expected(effect: str) -> Expected:
+    if effect in BIAS:
+        return Expected((BIAS[effect][1],), bias=True)
     if effect in OUTSIDE:
         return Expected((), OUTSIDE[effect], outside=True)
     if effect in NOT_INDEPENDENT:
@@ -167,7 +182,8 @@ class Scenario:
 
 
 def _draw(name: str, rng: np.random.Generator) -> dict[str, float]:
-    draw = HIDDEN[name] if name in HIDDEN else NOT_INDEPENDENT[name] if name in NOT_INDEPENDENT else NOT_IN_CATALOGUE[name][0]
+    draw = (HIDDEN[name] if name in HIDDEN else NOT_INDEPENDENT[name] if name in NOT_INDEPENDENT else
+            BIAS[name][0] if name in BIAS else NOT_IN_CATALOGUE[name][0])
     return {k: round(float(v), 4) for k, v in draw(rng).items()}
 
 

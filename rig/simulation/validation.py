@@ -16,6 +16,9 @@ recording blind, and judge it by what the scenario expects (`scenarios.EXPECTED`
       no false claim: the catalogue's effects alone do not bring every statistic within noise;
       covariate right: what remains follows a covariate the effect can explain;
       within noise: every statistic within noise once the empirical terms are in
+  a miscalibration (the depth's bias against the stage's truth: `rig.accuracy.bias_loop`)
+      named first: the bias loop's first effect is the one that describes it;
+      halved: the regions' RMS misfit at most half the offset-only model's; within noise: by radius and position
 
 Trials run in parallel processes (`--jobs`, default: one per core).
 """
@@ -31,8 +34,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+
 from ..models.fitting.progress import ProgressFn, WorkProgress
 
+from ..accuracy.bias_loop import bias_groups, diagnose_bias
 from ..diagnosis import diagnose
 from ..models import ModelData
 from .scenarios import ALL_SCENARIOS, expected, hidden_scenario, record_outside, record_scenario
@@ -73,6 +79,9 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
     `hidden_scenario` takes it: width, frames), diagnose it, and score the diagnosis against the answer."""
     t0 = time.monotonic()
     want = expected(effect)
+    if want.kind == "bias":
+        return _bias_trial(effect, seed, record_scenario(hidden_scenario(seed, effect, **scenario),
+                                                         Path(workdir) / f"{effect}-{seed}.h5"), t0)
     if want.kind == "outside":
         path = record_outside(effect, seed, Path(workdir) / f"{effect}-{seed}.h5")
     else:
@@ -106,13 +115,29 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
     )
 
 
+def _bias_trial(effect: str, seed: int, path: Path, t0: float) -> Trial:
+    """A miscalibration's trial: the bias loop (`rig.accuracy.bias_loop`) on the recording's stops against the
+    stage's truth; its "errors" are the regions' RMS misfit in mm (the noise: the RMS of their own errors)."""
+    g = bias_groups(ModelData.from_recording(path))
+    dg = diagnose_bias(g)
+    start, final = dg.steps[0], dg.final
+    named = dg.added[0] if dg.added else "none"
+    noise_mm = float(1e3 * np.sqrt(np.mean(g.se**2 + final.tau_m**2 + final.kappa_m**2)))
+    worst = "" if final.within_noise else min(final.checks, key=lambda k: final.checks[k][2])
+    return Trial(effect, seed, "bias", named, dg.added, named == expected(effect).named[0], "", True, start.rms_mm,
+                 final.rms_mm, final.rms_mm, noise_mm, final.rms_mm <= 0.5 * start.rms_mm, False,
+                 final.within_noise, time.monotonic() - t0, worst)
+
+
 def _line(t: Trial) -> str:
     verdict = "ok  " if t.passed else "MISS"
     path = "+".join(t.path) or "nothing added"
     rest = f", residual follows {t.covariate or '-'} ({'+'.join(t.empirical)})" if t.kind == "open" else ""
     beyond = "" if t.within_noise else f"  beyond noise: {t.worst or 'headline'}"
-    return (f"  {t.effect:<24} seed {t.seed:<5} {verdict} path {path}{rest}; error {t.error_before_pct:6.2f} % -> "
-            f"{t.error_catalogue_pct:5.2f} % -> {t.error_after_pct:5.2f} % (noise {t.noise_pct:.2f} %, {t.seconds:.0f} s){beyond}")
+    unit = "mm" if t.kind == "bias" else "%"  # a bias trial's error is the regions' RMS misfit
+    return (f"  {t.effect:<24} seed {t.seed:<5} {verdict} path {path}{rest}; error {t.error_before_pct:6.2f} {unit} -> "
+            f"{t.error_catalogue_pct:5.2f} {unit} -> {t.error_after_pct:5.2f} {unit} (noise {t.noise_pct:.2f} {unit}, "
+            f"{t.seconds:.0f} s){beyond}")
 
 
 def validate(effects: list[str], seeds: list[int], workdir: Path, out: TextIO = sys.stdout,
@@ -165,6 +190,7 @@ def summary(trials: list[Trial]) -> str:
         before = statistics.median(t.error_before_pct for t in ts)
         after = statistics.median((t.error_after_pct if open_like else t.error_catalogue_pct) for t in ts)
         named = count("correct") if kind != "outside" else "-"
+        unit = "mm" if kind == "bias" else "%"
         lines.append(f"| {effect} | {kind} | {named} | {halved} | {cov} | {on_path} | "
-                     f"{before:.2f} % -> {after:.2f} % | {count('within_noise')} |")
+                     f"{before:.2f} {unit} -> {after:.2f} {unit} | {count('within_noise')} |")
     return "\n".join(lines)
