@@ -106,9 +106,11 @@ def test_the_truth_is_the_stage_measured_then_commanded_then_the_plan():
 def test_rig_fit_gives_the_accuracy_in_text_json_and_table(recordings, tmp_path, capsys):
     path = recordings["miscalibrated"]
     table = tmp_path / "stops.csv"
-    assert main(["fit", str(path), "--table", str(table)]) == 0
+    assert main(["fit", str(path), "--table", str(table), "--report", str(tmp_path / "report")]) == 0
     text = capsys.readouterr().out
     assert "accuracy against the stage measured distance" in text and "bias model: offset_m" in text
+    page = (tmp_path / "report" / "fit.html").read_text()
+    assert "accuracy against the stage measured distance" in page and "bias model: offset_m" in page
     assert main(["fit", str(path), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     jsonschema.validate(doc, json.loads((ROOT / "docs" / "json-schema.json").read_text()))

@@ -132,7 +132,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(_fix_line(h) or f"    (what is missing? rig diagnose {args.recording})")
         for line in accuracy_lines(acc):
             print(line)
-    _fit_report(args, r.fit, r.samples.positive_variance(), h, r.notes)
+    _fit_report(args, r.fit, r.samples.positive_variance(), h, r.notes, acc)
     if args.plot:
         from ..reports.sigma_plot import SigmaSeries, plot_sigma_vs_range
 
@@ -169,7 +169,7 @@ def _fit_model(args: argparse.Namespace) -> int:
         print(dumps(document("fit", args.recording, notes, [fit_json(f, h, held_out_nll=nll)], best=model.name,
                              window_m=(args.z_min, args.z_max), accuracy=accuracy_json(acc))))
         _write_table(args, f, d, acc)
-        _fit_report(args, f, d, h, notes)
+        _fit_report(args, f, d, h, notes, acc)
         return exit_status([h])
     from ..accuracy import accuracy_lines
 
@@ -184,7 +184,7 @@ def _fit_model(args: argparse.Namespace) -> int:
     for line in accuracy_lines(acc):
         print(line)
     _write_table(args, f, d, acc)
-    _fit_report(args, f, d, h, notes)
+    _fit_report(args, f, d, h, notes, acc)
     return exit_status([h])
 
 
@@ -325,13 +325,15 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str]) -> None:
-    """`--report DIR`: fit.html and its plot (rig.reports.report_pages)."""
+def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str], acc=None) -> None:
+    """`--report DIR`: fit.html and its plot (rig.reports.report_pages), with the accuracy against the stage."""
     if not args.report:
         return
+    from ..accuracy import accuracy_lines
     from ..reports.report_pages import fit_report
 
-    text = "\n".join([*(f"note: {n}" for n in notes), fit.report(), f"    headline error: {h}"])
+    text = "\n".join([*(f"note: {n}" for n in notes), fit.report(), f"    headline error: {h}",
+                      *(accuracy_lines(acc) if acc is not None else [])])
     page = fit_report(args.recording, fit, d, h, text, args.report, notes)
     print(f"report: {page}", file=sys.stderr if args.json else sys.stdout)
 
