@@ -19,14 +19,14 @@ pytestmark = pytest.mark.slow
 
 @pytest.mark.parametrize("effect", list(BIAS))
 def test_each_miscalibration_is_named_first_and_ends_within_noise(effect, tmp_path):
-    t = run_trial(effect, 1000, tmp_path, width=53)
+    t = run_trial(effect, 1000, tmp_path, width=32, frames=50)
     where = f"{effect}: path {t.path}, RMS {t.error_before_pct:.3f} -> {t.error_after_pct:.3f} mm, {t.worst}"
     assert t.kind == "bias" and t.correct and t.path[0] == BIAS[effect][1], where
     assert t.halved and t.within_noise, where
 
 
 def test_a_clean_camera_gets_no_bias_effect(tmp_path):
-    path = record_scenario(hidden_scenario(1000, "none", width=53), tmp_path / "clean.h5")
+    path = record_scenario(hidden_scenario(1000, "none", width=32, frames=50), tmp_path / "clean.h5")
     dg = diagnose_bias(bias_groups(ModelData.from_recording(path)))
     assert dg.added == [] and dg.final.within_noise, (dg.candidates, dg.final.checks)
     assert all(dbic > -10 for _, dbic in dg.candidates[0])
