@@ -124,8 +124,10 @@ class Recording:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        if not self.path.exists():
-            raise RecordingError(f"{self.path} does not exist; check the path (rig demo writes to rig-output/)")
+        if not self.path.is_file():
+            raise RecordingError(f"{self.path} is a folder, not a recording; give one of its .h5 files (rig fit and rig "
+                                 "compare take a folder with --many or as several recordings)" if self.path.is_dir() else
+                                 f"{self.path} does not exist; check the path (rig demo writes to rig-output/)")
         try:
             self.file = h5py.File(self.path, "r")
         except OSError as e:
@@ -243,10 +245,7 @@ class Recording:
             out.append(f"still being written by PID {self.writer.get('pid')} ({len(labels)} stops complete so far)")
         planned = self.protocol_params.get("stops_m")
         if isinstance(planned, list) and planned and not self.in_progress:
-            try:
-                want = [f"{float(z):.3f}m" for z in planned]
-            except (TypeError, ValueError):
-                want = []
+            want = [f"{float(z):.3f}m" for z in planned if isinstance(z, (int, float)) and not isinstance(z, bool)]
             missing = [w for w in want if w not in labels]
             if missing:
                 out.append(f"{len(want) - len(missing)} of {len(want)} planned stops (missing {', '.join(missing[:5])}"

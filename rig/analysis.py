@@ -90,6 +90,10 @@ def check_window(z_min_m: float | None, z_max_m: float | None) -> None:
                          + (f"; swap them: --z-min {z_max_m:g} --z-max {z_min_m:g}" if what == "inverted" else ""))
 
 
+#: the nearest range a stereo depth camera measures (m): a window value under it, read as millimetres, is no range
+NEAREST_RANGE_M = 0.1
+
+
 def in_window(d: ModelData, z_min_m: float | None, z_max_m: float | None) -> ModelData:
     """The pixels of `d` whose mean range is in the window (m; None: open on that side). A window that keeps no
     pixel is a ValueError naming it and the recording's span, and saying so when it looks like millimetres."""
@@ -105,7 +109,10 @@ def in_window(d: ModelData, z_min_m: float | None, z_max_m: float | None) -> Mod
     message = f"no pixel in the window {window}: the recording's pixels span {lo:.3f}-{hi:.3f} m"
     lo_mm = -math.inf if z_min_m is None else z_min_m / 1000
     hi_mm = math.inf if z_max_m is None else z_max_m / 1000
-    if max(v for _, v in given) > hi and lo_mm <= hi and hi_mm >= lo:
+    # millimetres only where each value, read as mm, is a range a depth camera sees (0.1 m and more): --z-min 5 is 5 m
+    # past the farthest stop, not 5 mm
+    plausible_mm = all(v / 1000 >= NEAREST_RANGE_M for _, v in given)
+    if max(v for _, v in given) > hi and lo_mm <= hi and hi_mm >= lo and plausible_mm:
         raise ValueError(f"{message}; the window is in metres, and this looks like millimetres: "
                          + " ".join(f"{o} {v / 1000:g}" for o, v in given))
     raise ValueError(f"{message}; give a window (in metres) that overlaps it")

@@ -208,3 +208,25 @@ def test_simulate_refuses_a_folder_and_an_existing_recording(tmp_path, capsys):
     assert main(["simulate", "--seed", "1", str(old)]) == 2
     assert "exists; remove it or give another file name (rig simulate does not overwrite)" in capsys.readouterr().err
     assert old.read_bytes() == b"a lab's recording"
+
+
+def test_mistakes_of_issue_51_are_one_line_naming_the_fix(small_recording, tmp_path, capsys):
+    """issue 51: a file given twice was compared with itself ("alike"); a folder to rig fit was an HDF5 error with a
+    buffer address; --z-min 5 was read as millimetres; an unknown scenario was a traceback from the pool;
+    --sigma-map 500,1000 drew maps at 500 m."""
+    r = str(small_recording)
+    cases = [
+        (["compare", r, f"{small_recording.parent}/./{small_recording.name}"], "is given twice (as"),
+        (["repeatability", r, r, r], "is given twice (as"),
+        (["fit", str(tmp_path)], "is a folder, not a recording; give one of its .h5 files"),
+        (["fit", r, "--z-min", "5"], "give a window (in metres) that overlaps it"),
+        (["validate-diagnosis", "--effects", "nosuch", "--seeds", "1"], "--effects: no scenario named nosuch; the"),
+        (["export", r, "-o", str(tmp_path / "m.json"), "--sigma-map", "500,1000"],
+         "500 m is beyond any stereo depth camera's range (50 m); give ranges in metres, e.g. --sigma-map 0.5,1"),
+    ]
+    for argv, words in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err, (argv, err)
+        assert "millimetres" not in err and "Traceback" not in err
+    assert not (tmp_path / "m.json").exists()

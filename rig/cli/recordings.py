@@ -55,6 +55,12 @@ def expand(paths: list[str]) -> list[str]:
             out += [str(f) for f in found]
         else:
             out.append(p)
+    seen: dict[str, str] = {}
+    for p in out:  # one file given twice compares it with itself: "alike", or errors judged on copies
+        key = str(Path(p).resolve())
+        if key in seen:
+            raise UsageError(f"{p} is given twice (as {seen[key]} too); give each recording once")
+        seen[key] = p
     return out
 
 

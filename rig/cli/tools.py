@@ -197,6 +197,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
     from ..simulation.scenarios import ALL_SCENARIOS
 
     effects = [e.strip() for e in (args.effects or ",".join(ALL_SCENARIOS)).split(",") if e.strip()]
+    unknown = [e for e in effects if e not in ALL_SCENARIOS]
+    if unknown:  # before any trial: a worker's error would come back as a traceback from the pool
+        raise UsageError(f"--effects: no scenario named {', '.join(unknown)}; the scenarios are {', '.join(ALL_SCENARIOS)}")
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     from ..reports.work_progress import WorkProgressLine
 

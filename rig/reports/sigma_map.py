@@ -19,6 +19,10 @@ from ..noise_model import NoiseModel
 MAP_INPUTS = ("cos_incidence",)
 
 
+#: the farthest range a sigma map is drawn at (m): beyond it, a range is a number in mm written as metres
+FARTHEST_MAP_M = 50.0
+
+
 def parse_ranges(text: str) -> list[float]:
     """"0.5,1,2" -> [0.5, 1.0, 2.0]; a ValueError naming the option and the fix otherwise."""
     try:
@@ -27,6 +31,11 @@ def parse_ranges(text: str) -> list[float]:
         z = []
     if not z or not all(np.isfinite(v) and v > 0 for v in z):
         raise ValueError(f"--sigma-map {text!r}: give ranges in metres, comma-separated and above 0, e.g. --sigma-map 0.5,1,2")
+    far = [v for v in z if v > FARTHEST_MAP_M]
+    if far:  # millimetres written as metres, most likely: a map at 500 m is no stereo camera's
+        raise ValueError(f"--sigma-map {text!r}: {far[0]:g} m is beyond any stereo depth camera's range "
+                         f"({FARTHEST_MAP_M:g} m); give ranges in metres, e.g. --sigma-map "
+                         + ",".join(f"{v / 1000:g}" if v > FARTHEST_MAP_M else f"{v:g}" for v in z))
     return z
 
 
