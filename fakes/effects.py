@@ -397,3 +397,16 @@ class DisparityWarmup(Effect):
 
     def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
         d_px += np.float32(self.offset_px * ctx.field.px_scale * np.exp(-ctx.time_s / self.time_constant_s))
+
+
+@register
+@dataclass
+class DisparityTilt(Effect):
+    """A rectification turned about the vertical: the disparity is off by `coefficient_px` x (x = (u - cx) / fx, native
+    px), a bias that grows across the image as Z^2 x. No bias effect of rig's has it: a user writes one."""
+
+    name: ClassVar[str] = "disparity_tilt"
+    coefficient_px: float = 0.1
+
+    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
+        d_px += (self.coefficient_px * ctx.field.px_scale * ctx.field.xn).astype(np.float32)

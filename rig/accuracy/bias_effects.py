@@ -3,13 +3,24 @@
     Z = (1 + S) f b / (f b / (t + c) + Delta)            (eq. dist_to_disp with a scale and a disparity error)
 
 at each image region and stop (`bias_loop.BiasGroups`: t the stage's distance, rho^2 the squared normalised radius,
-time since the first stop). The wall's offset c is every model's base. An effect names its parameters (unit,
-start, bounds) and the residual signature it explains, as a noise effect does (rig/models/effects/builtin).
+time since the first stop, x and y_norm the normalised position). The wall's offset c is every model's base. An
+effect names its parameters (unit, start, bounds) and the residual signature it explains, as a noise effect does
+(rig/models/effects/builtin). A user writes one in a Python file, loaded with `rig accuracy --effects FILE.py`:
+
+    from rig.accuracy import BiasEffect, BiasParam
+
+    TILT = BiasEffect("rectification_tilt", (BiasParam("tilt_px", 0.0, -5, 5, "px", "disparity error at x = 1"),),
+                      "a rectification rotated about the vertical", "a bias growing across the image, as Z^2 x",
+                      lambda p, g: (0.0, p["tilt_px"] * g.x))
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -68,3 +79,32 @@ BIAS_EFFECTS: dict[str, BiasEffect] = {e.name: e for e in (
                "a camera still warming up: delta = w exp(-time / T)", "a bias fading with time, whatever the range",
                _warmup, starts=({"warmup_time_s": 10.0}, {"warmup_time_s": 30.0}, {"warmup_time_s": 100.0})),
 )}
+
+
+class BiasEffectFileError(ValueError):
+    """A bias-effect file that cannot be used: one line naming the file and the fix."""
+
+
+def load_bias_effects(path: str | Path) -> dict[str, BiasEffect]:
+    """The `BiasEffect` objects a Python file defines at module level, by name; a name of a built-in one, a file
+    that does not run, or one that defines none is a one-line BiasEffectFileError."""
+    path = Path(path)
+    if not path.is_file():
+        raise BiasEffectFileError(f"{path} does not exist; pass a Python file that defines BiasEffect objects")
+    name = "rig_user_bias_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise BiasEffectFileError(f"{path} is not a Python file; name it *.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:
+        sys.modules.pop(name, None)
+        raise BiasEffectFileError(f"{path}: running it failed ({type(e).__name__}: {e}); fix the file") from None
+    found = {v.name: v for v in vars(module).values() if isinstance(v, BiasEffect) and v not in BIAS_EFFECTS.values()}
+    taken = sorted(set(found) & set(BIAS_EFFECTS))
+    if taken:
+        raise BiasEffectFileError(f"{path}: the bias effect {taken[0]!r} has the name of a built-in one; rename it")
+    return found
+

@@ -36,7 +36,7 @@ ALPHA = 1e-3
 @dataclass(frozen=True)
 class BiasGroups:
     """The regions of every stop (one row each): truth t (m), mean bias y (m) and its error se (m), rho2, time_s,
-    the stop's index and the region's."""
+    the stop's index and the region's, and the region's mean normalised position x = (u - cx) / fx, y_norm."""
 
     t: np.ndarray
     y: np.ndarray
@@ -46,6 +46,8 @@ class BiasGroups:
     stop: np.ndarray
     region: np.ndarray
     fb_px_m: float
+    x: np.ndarray | None = None
+    y_norm: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.y)
@@ -63,8 +65,8 @@ def bias_groups(d: ModelData) -> BiasGroups | None:
     rows = np.minimum((REGIONS[1] * v / (v.max() + 1)).astype(int), REGIONS[1] - 1)
     region = rows * REGIONS[0] + cols
     dev = np.asarray(d.z0_m, float) - np.asarray(table.truth_m, float)[d.stop]
-    rho2 = np.asarray(d.rho2, float)
-    out = {k: [] for k in ("t", "y", "se", "rho2", "time_s", "stop", "region")}
+    rho2, xn, yn = np.asarray(d.rho2, float), np.asarray(d.x_norm, float), np.asarray(d.y_norm, float)
+    out = {k: [] for k in ("t", "y", "se", "rho2", "time_s", "stop", "region", "x", "y_norm")}
     stops = [s for s in stops_of(d).tolist() if math.isfinite(table.truth_m[s]) and table.truth_m[s] > 0]
     if len(stops) < 3:
         return None
@@ -81,13 +83,15 @@ def bias_groups(d: ModelData) -> BiasGroups | None:
             out["y"].append(float(x.mean()))
             out["se"].append(float(x.std(ddof=1) / math.sqrt(n)) or 1e-9)
             out["rho2"].append(float(rho2[m].mean()))
+            out["x"].append(float(xn[m].mean()))
+            out["y_norm"].append(float(yn[m].mean()))
             time = table.time_s[s] - t0
             out["time_s"].append(float(time) if math.isfinite(time) else 0.0)
             out["stop"].append(s)
             out["region"].append(r)
     a = {k: np.array(v) for k, v in out.items()}
     return BiasGroups(a["t"], a["y"], a["se"], a["rho2"], a["time_s"], a["stop"].astype(int), a["region"].astype(int),
-                      d.fb_px_m)
+                      d.fb_px_m, a["x"], a["y_norm"])
 
 
 def predicted_bias(g: BiasGroups, effects: tuple[BiasEffect, ...], p: dict[str, float]) -> np.ndarray:

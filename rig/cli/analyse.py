@@ -294,14 +294,21 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     from ..accuracy import accuracy_json, accuracy_lines, accuracy_of
     from ..accuracy.bias_loop import bias_groups, diagnose_bias
     from ..accuracy.path_text import bias_path_json, bias_path_lines
+    from ..accuracy.bias_effects import BIAS_EFFECTS, BiasEffectFileError, load_bias_effects
 
+    users: dict = {}
+    try:
+        for f in args.effects:  # the user's bias effects join the loop's catalogue
+            users.update(load_bias_effects(f))
+    except BiasEffectFileError as e:
+        raise UsageError(str(e)) from None
     with progress_line(args, "rig accuracy"):
         d, notes = model_data(args.recording)
         with Recording(args.recording) as rec:
             protocol = rec.protocol
         acc = accuracy_of(d, None, protocol)
         groups = bias_groups(d) if not acc.why_not else None
-        dg = diagnose_bias(groups) if groups is not None else None
+        dg = diagnose_bias(groups, {**BIAS_EFFECTS, **users}) if groups is not None else None
     if args.json:
         import json
 
