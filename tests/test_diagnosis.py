@@ -15,7 +15,7 @@ import h5py
 import pytest
 
 from rig.cli import main
-from rig.simulation.scenarios import ALL_SCENARIOS, HIDDEN, NOT_INDEPENDENT, OUTSIDE, SATURATED_IR
+from rig.simulation.scenarios import ALL_SCENARIOS, BIAS, HIDDEN, NOT_INDEPENDENT, OUTSIDE, SATURATED_IR
 from rig.simulation.validation import run_trial
 
 pytestmark = pytest.mark.slow
@@ -33,12 +33,13 @@ SIZE = dict(width=53)
 SHORTFALLS: dict[str, str] = {}
 #: noisy_confidence, the slowest trial, is left to the docs' table (rig validate-diagnosis); the suite does not run it
 SUITE = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=SHORTFALLS[s])) if s in SHORTFALLS else s
-         for s in ALL_SCENARIOS if s not in ("noisy_confidence", "mottled_beam", *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE)]
+         for s in ALL_SCENARIOS
+         if s not in ("noisy_confidence", "mottled_beam", *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE, *BIAS)]
 # temporal_filter (frames not independent) runs cheaper, without the path: tests/test_independence.py; and
 # ambient_saturated_ir (IR clipped near the wall) on a smaller image: tests/test_ir_saturation.py; the outside
 # scenes (fakes/outside, 26-100 s of CPU a diagnosis) are the docs' table's alone; one runs below as a trial.
 # mottled_beam ends beyond noise without the effect the diagnosis does not try on its own (docs/models.md, 0/10); the
-# model that names it is tests/test_measured_light.py's
+# model that names it is tests/test_measured_light.py's; the miscalibrations (BIAS) are tests/test_bias_loop.py's
 
 
 def test_an_outside_scene_runs_as_a_trial_from_its_folder(tmp_path):
