@@ -230,3 +230,11 @@ def test_mistakes_of_issue_51_are_one_line_naming_the_fix(small_recording, tmp_p
         assert len(err.splitlines()) == 1 and words in err, (argv, err)
         assert "millimetres" not in err and "Traceback" not in err
     assert not (tmp_path / "m.json").exists()
+
+
+def test_the_tui_without_a_terminal_is_one_line_not_a_hang(tmp_path, capsys):
+    """issue 51: `rig tui nothere.h5 > log` drew escape codes into the file until killed (240 s); under pytest
+    standard output is captured, not a terminal."""
+    assert main(["tui", str(tmp_path / "nothere.h5")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("rig tui: error: the terminal UI needs a terminal") and len(err.splitlines()) == 1
