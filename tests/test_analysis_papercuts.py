@@ -238,3 +238,16 @@ def test_the_tui_without_a_terminal_is_one_line_not_a_hang(tmp_path, capsys):
     assert main(["tui", str(tmp_path / "nothere.h5")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("rig tui: error: the terminal UI needs a terminal") and len(err.splitlines()) == 1
+
+
+def test_export_of_a_recording_that_does_not_determine_lambda_says_so_and_exits_3(tmp_path, capsys):
+    """issue 51: rig export of a one-stop recording exited 0 with lambda at its bound, "NOT DETERMINED" only inside
+    the JSON. It still writes the file (a model with lambda fixed would be the fix), and says so, exit 3 as rig fit."""
+    one = tmp_path / "one.h5"
+    assert main(["run", "--protocol", "perpendicular", "--stops", "1.0", "--camera", "fake:width=16,height=9,seed=3",
+                 "--stage", "fake:", "-o", str(one), "--frames", "10", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["export", str(one), "-o", str(tmp_path / "m.json")]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("warning: the file is written, but lambda is not determined: the fitted pixels lie at one")
+    assert "--model active" in err[-1] and (tmp_path / "m.json").exists()

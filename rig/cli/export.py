@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import refuse_unwritable
+from .options import EXIT_UNDETERMINED, refuse_unwritable
 from .usage import UsageError
 
 
@@ -102,6 +102,9 @@ def cmd_export(args: argparse.Namespace) -> int:
 
         vectors = write_vectors(NoiseModel.from_dict(doc, str(out)), out.with_name(out.stem + ".test-vectors.csv"))
         print(f"test vectors: {vectors} ({ROWS} rows)", file=stream)
+    if not h.determined:  # written, but said, and the exit status of every command that fitted such a lambda
+        print(f"warning: the file is written, but {h.lambda_status.reason}; {h.lambda_status.fix}", file=sys.stderr)
+        return EXIT_UNDETERMINED
     return 0
 
 
