@@ -141,7 +141,12 @@ class DeviceSpec:
         options = {}
         for item in filter(None, (p.strip() for p in _split_options(rest))):
             if "=" not in item:
-                raise DeviceError(f"device string {text!r}: option {item!r} is not KEY=VALUE; write e.g. 'fake:width=424'")
+                if item.startswith("/") or item[:3].upper() == "COM":  # a port where the URL form wants //: say that
+                    raise DeviceError(f"device string {text!r}: {item!r} looks like a port; write it after '//', as "
+                                      f"'{kind}://{item}' (a path gives three slashes)")
+                port = "" if kind in ("fake", "none") else f", or a port as '{kind}:///dev/ttyUSB0'"
+                raise DeviceError(f"device string {text!r}: option {item!r} is not KEY=VALUE; write e.g. "
+                                  f"'{kind}:KEY=VALUE' ('fake:width=424'){port}")
             key, value = item.split("=", 1)
             _add_option(options, key.strip(), value.strip(), text)
         return cls(kind, "", options, text)

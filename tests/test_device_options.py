@@ -104,6 +104,15 @@ def test_none_takes_nothing_and_fake_kinds_take_no_path():
     assert "takes no path" in refusal("camera", "fake:///x", CameraError)
 
 
+def test_a_port_written_without_its_slashes_is_named_as_a_port():
+    """issue 51: --stage 'grbl:/dev/pts/0' was "not KEY=VALUE; write e.g. 'fake:width=424'"."""
+    assert ("'/dev/pts/0' looks like a port; write it after '//', as 'grbl:///dev/pts/0'"
+            in refusal("stage", "grbl:/dev/pts/0"))
+    assert "'COM3' looks like a port; write it after '//', as 'zaber://COM3'" in refusal("stage", "zaber:COM3")
+    message = refusal("camera", "fake:wide")
+    assert "option 'wide' is not KEY=VALUE; write e.g. 'fake:KEY=VALUE'" in message and "port" not in message
+
+
 def test_a_key_without_a_value_is_not_dropped():
     # parse_qsl used to drop these silently: the run went on with the default offset
     assert "option 'offset_m' is not KEY=VALUE" in refusal("stage", "grbl:///dev/null?offset_m")
