@@ -251,3 +251,16 @@ def test_export_of_a_recording_that_does_not_determine_lambda_says_so_and_exits_
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("warning: the file is written, but lambda is not determined: the fitted pixels lie at one")
     assert "--model active" in err[-1] and (tmp_path / "m.json").exists()
+
+
+def test_an_output_named_as_another_kind_of_file_is_refused(small_recording, tmp_path, capsys, monkeypatch):
+    """issue 51: `-o out.png` wrote HDF5 (or JSON) into a .png."""
+    monkeypatch.chdir(tmp_path)
+    for argv, words in [(["run", "--protocol", "perpendicular", "-o", "out.png"], "-o out.png: a .png name for a "
+                         "recording (HDF5), which is .h5; name it out.h5"),
+                        (["simulate", "s.csv"], "OUTPUT s.csv: a .csv name for a recording (HDF5), which is .h5"),
+                        (["export", str(small_recording), "-o", "m.png"], "a .png name for a noise model (JSON), which "
+                         "is .json; name it m.json")]:
+        assert main(argv) == 2, argv
+        assert words in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

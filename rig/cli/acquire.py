@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .options import QUIET, at_least, refuse_unwritable, verbosity
+from .options import QUIET, at_least, refuse_suffix, refuse_unwritable, verbosity
 from .usage import UsageError
 
 
@@ -156,6 +156,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else exp.output
     if output is None:
         raise UsageError("no output file; pass -o FILE.h5 (or set output in the experiment file)")
+    refuse_suffix(output, "-o", (".h5", ".hdf5"), "a recording (HDF5)")
     devices = open_devices(camera, stage, **spec.wall_of(exp.plan.params))
     quiet = verbosity(args) == QUIET
     if not quiet:
@@ -177,6 +178,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if out.exists():  # as rig run: a recording is never overwritten
         raise UsageError(f"{out} exists; remove it or give another file name (rig simulate does not overwrite)")
     refuse_unwritable(out, "OUTPUT")
+    refuse_suffix(out, "OUTPUT", (".h5", ".hdf5"), "a recording (HDF5)")
     try:
         sc = hidden_scenario(args.seed, args.effect, width=args.width, frames=args.frames)
     except ValueError as e:
@@ -212,6 +214,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     from ..reports.progress import TerminalProgress
 
+    refuse_suffix(args.output, "-o", (".h5", ".hdf5"), "a recording (HDF5)")
     progress = None if verbosity(args) == QUIET else TerminalProgress()
     notes: list[str] = []
     if bag_source(Path(args.folder)):

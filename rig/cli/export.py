@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import EXIT_UNDETERMINED, refuse_unwritable
+from .options import EXIT_UNDETERMINED, refuse_suffix, refuse_unwritable
 from .usage import UsageError
 
 
@@ -54,6 +54,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     check_window(args)
     out = Path(args.out) if args.out else Path(args.recording).with_name(Path(args.recording).stem + "-noise-model.json")
     refuse_unwritable(out, "--out")
+    refuse_suffix(out, "--out", (".json",), "a noise model (JSON)")
     try:
         ranges = parse_ranges(args.sigma_map) if args.sigma_map else None
     except ValueError as e:

@@ -32,6 +32,22 @@ def at_least(low: int, what: str):
     return parse
 
 
+def refuse_suffix(path: str | Path | None, option: str, suffixes: tuple[str, ...], what: str) -> None:
+    """A one-line UsageError when `path`'s suffix is another kind of file's (`-o run.png` would hold HDF5): an unknown
+    suffix is the user's choice, a known one of something else is a slip. `what` names the file, e.g. "a recording"."""
+    if path is None:
+        return
+    suffix = Path(path).suffix.lower()
+    if suffix and suffix not in suffixes and suffix in OTHER_KINDS:
+        raise UsageError(f"{option} {path}: a {suffix} name for {what}, which is {suffixes[0]}; name it "
+                         f"{Path(path).with_suffix(suffixes[0]).name}")
+
+
+#: suffixes of files that are not what rig writes to them: images, tables, text, archives, other data
+OTHER_KINDS = (".png", ".jpg", ".jpeg", ".svg", ".pdf", ".tif", ".tiff", ".csv", ".txt", ".md", ".html", ".json",
+               ".toml", ".npy", ".npz", ".bag", ".db3", ".mcap", ".zip", ".gz", ".py", ".h5", ".hdf5")
+
+
 QUIET = -1
 NORMAL = 0
 VERBOSE = 1
