@@ -264,3 +264,21 @@ def test_an_output_named_as_another_kind_of_file_is_refused(small_recording, tmp
         assert main(argv) == 2, argv
         assert words in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_a_recording_too_small_to_judge_says_so_and_claims_nothing(tmp_path, capsys):
+    """issue 51: a tiny recording was diagnosed as "headline error nan % ... every statistic within noise", with
+    numpy's "Mean of empty slice" warnings: no bin held enough pixels, and nothing was judged."""
+    import warnings
+
+    tiny = tmp_path / "tiny.h5"
+    assert main(["run", "--protocol", "perpendicular", "--camera", "fake:width=4,height=2,seed=3", "--stage", "fake:",
+                 "-o", str(tiny), "--frames", "20", "-q"]) == 0
+    capsys.readouterr()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "Mean of empty slice"
+        assert main(["diagnose", str(tiny), "--out", str(tmp_path / "d"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["fits"][0]["headline"]["state"] == "not judged" and doc["diagnosis"]["added"] == []
+    assert doc["diagnosis"]["summary"].startswith("Nothing can be judged on these data: no range-and-radius bin holds")
+    assert "within noise" not in doc["diagnosis"]["summary"]

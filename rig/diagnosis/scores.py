@@ -36,6 +36,7 @@ from ..models.parts.result import chi2_sf
 from ..models.data.determinacy import LambdaStatus, lambda_status
 from ..models.fitting.progress import ProgressCounter
 from .consistency import ALPHA, Consistency
+from .bins import MIN_PIXELS_PER_BIN
 from .residuals import Residuals, residuals
 
 
@@ -61,8 +62,16 @@ class Headline:
         return self.lambda_status is None or self.lambda_status.determined
 
     @property
+    def judged(self) -> bool:
+        """Some range-and-radius bin holds enough pixels (`bins.MIN_PIXELS_PER_BIN`) to compare sigma in."""
+        return self.bins > 0
+
+    @property
     def state(self) -> str:
-        """In two words: "within noise", "beyond noise", or "not determined" (lambda free, the data too narrow)."""
+        """In two words: "within noise", "beyond noise", "not determined" (lambda free, the data too narrow), or
+        "not judged" (no bin holds enough pixels)."""
+        if not self.judged:
+            return "not judged"
         if not self.determined:
             return "not determined"
         return "within noise" if self.within_noise else "beyond noise"
@@ -75,8 +84,9 @@ class Headline:
 
     @property
     def within_noise(self) -> bool:
-        """Every statistic the model predicts agrees within its own error (the headline bins included)."""
-        return self.sigma_within_noise and (self.consistency is None or self.consistency.within_noise_with(1))
+        """Every statistic the model predicts agrees within its own error (the headline bins included); never where
+        nothing was judged."""
+        return self.judged and self.sigma_within_noise and (self.consistency is None or self.consistency.within_noise_with(1))
 
     @property
     def misfit(self) -> float:
@@ -86,6 +96,9 @@ class Headline:
         return max(0.0, self.chi2 - self.dof) + extra
 
     def verdict(self) -> str:
+        if not self.judged:
+            return (f"NOT JUDGED: no range-and-radius bin holds {MIN_PIXELS_PER_BIN} pixels to compare sigma in; "
+                    "record a larger image or more frames a stop")
         if not self.determined:
             return f"lambda NOT DETERMINED: {self.lambda_status.reason.removeprefix('lambda is not determined: ')}"
         if self.within_noise:
@@ -114,9 +127,10 @@ def headline(fit: ModelFit, d: ModelData, *, checks: bool = True) -> Headline:
     b = r.by_range_radius
     stat = float(np.sum((b.log_ratio / b.se_log) ** 2))
     dof = max(1, len(b.log_ratio) - fit.n_free)
+    rms = (lambda x: 100 * float(np.sqrt(np.mean(x**2)))) if len(b.log_ratio) else (lambda x: float("nan"))
     return Headline(
-        error_pct=100 * float(np.sqrt(np.mean(b.log_ratio**2))),
-        noise_pct=100 * float(np.sqrt(np.mean(b.se_log**2))),
+        error_pct=rms(b.log_ratio),
+        noise_pct=rms(b.se_log),
         chi2=stat, dof=dof, p_value=float(chi2_sf(stat, dof)), bins=len(b.log_ratio),
         consistency=r.consistency if checks else None,
         lambda_status=lambda_status(d, free=not fit.lam_fixed),

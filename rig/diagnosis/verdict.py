@@ -136,6 +136,9 @@ class Diagnosis:
 
     def _summary(self) -> str:
         m = self.model_fit.model.name
+        if not self.model_headline.judged:
+            return (f"Nothing can be judged on these data: {self.model_headline.verdict().removeprefix('NOT JUDGED: ')}"
+                    f" ({len(self.data)} pixel-stops in all).")
         shape = _shape_sentence(self.model_headline)
         if len(self.steps) == 1:
             if self.model_headline.within_noise:
@@ -243,7 +246,9 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
     steps[0].candidates = rank_candidates(model, fit, d, catalogue, counter=counter, jobs=jobs,
                                           not_fitted=steps[0].not_fitted)  # shown even when nothing is missing
     stopped = "every statistic is within noise"
-    while not steps[-1].headline.within_noise:
+    if not steps[0].headline.judged:
+        stopped = "nothing can be judged: no range-and-radius bin holds enough pixels"
+    while not steps[-1].headline.within_noise and steps[-1].headline.judged:
         if len(steps) > max_steps:
             stopped = f"{max_steps} catalogue effects are in, the most the path adds before empirical terms"
             break
@@ -266,7 +271,7 @@ def diagnose(d: ModelData, model: Model | None = None, *, source: str = "", cata
         steps.append(Step(best.fit, after, best, equivalent))
         counter.more_may_come = not after.within_noise and (len(steps) <= max_steps or explain)
     unexplained = None
-    if explain and not steps[-1].headline.within_noise:
+    if explain and not steps[-1].headline.within_noise and steps[-1].headline.judged:
         unexplained = explain_residual(steps[-1].fit, steps[-1].headline, d, counter=counter, jobs=jobs,
                                        catalogue=catalogue)
     counter.more_may_come = False
