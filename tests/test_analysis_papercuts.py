@@ -282,3 +282,18 @@ def test_a_recording_too_small_to_judge_says_so_and_claims_nothing(tmp_path, cap
     assert doc["fits"][0]["headline"]["state"] == "not judged" and doc["diagnosis"]["added"] == []
     assert doc["diagnosis"]["summary"].startswith("Nothing can be judged on these data: no range-and-radius bin holds")
     assert "within noise" not in doc["diagnosis"]["summary"]
+
+
+def test_missing_files_empty_maps_and_a_file_for_a_folder_are_one_line(small_recording, tmp_path, capsys):
+    """issue 51: `rig compare a.h5 nothere.h5` put its error in a row of the table and drew the plot; `--sigma-map ''`
+    exited 0 without a map; `rig paper-windows --out FILE` was a FileExistsError traceback."""
+    afile = tmp_path / "fit.png"
+    afile.write_bytes(b"a plot")
+    for argv, words in [(["compare", str(small_recording), str(tmp_path / "nothere.h5")], "nothere.h5 does not exist"),
+                        (["export", str(small_recording), "-o", str(tmp_path / "m.json"), "--sigma-map", ""],
+                         "--sigma-map '': give ranges in metres"),
+                        (["paper-windows", "--out", str(afile)], "is a file; --out is the folder the recordings go to")]:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr()
+        assert words in err.err and len(err.err.strip().splitlines()) == 1 and not err.out, (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fit.png"]

@@ -56,7 +56,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     refuse_unwritable(out, "--out")
     refuse_suffix(out, "--out", (".json",), "a noise model (JSON)")
     try:
-        ranges = parse_ranges(args.sigma_map) if args.sigma_map else None
+        ranges = parse_ranges(args.sigma_map) if args.sigma_map is not None else None
     except ValueError as e:
         raise UsageError(str(e)) from None
     model = parse_model_option(args.model, catalogue_of(args)) if args.model else None

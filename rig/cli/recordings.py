@@ -53,6 +53,8 @@ def expand(paths: list[str]) -> list[str]:
             if not found:
                 raise UsageError(f"{p} holds no recordings (*.h5); record some with rig run, or give the files")
             out += [str(f) for f in found]
+        elif not Path(p).exists():  # before any fit: a row of the table, and a plot, were made without it
+            raise UsageError(f"{p} does not exist; check the path (rig demo writes to rig-output/)")
         else:
             out.append(p)
     seen: dict[str, str] = {}

@@ -182,6 +182,9 @@ def cmd_paper_windows(args: argparse.Namespace) -> int:
         raise UsageError("--frames must be at least 2 (a variance needs two samples)")
     if args.width < 8:
         raise UsageError("--width must be at least 8 px")
+    if Path(args.out).exists() and not Path(args.out).is_dir():  # it was a FileExistsError traceback
+        raise UsageError(f"--out {args.out} is a file; --out is the folder the recordings go to: give a folder")
+    refuse_unwritable(args.out, "--out", folder=True)
     t0 = time.monotonic()
     print(run_paper_windows(args.out, frames=args.frames, width=args.width, seed=args.seed))
     print(f"Done in {time.monotonic() - t0:.0f} s.", file=sys.stderr)
