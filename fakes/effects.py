@@ -387,20 +387,6 @@ class RadialDisparity(Effect):
 
 @register
 @dataclass
-class DisparityWarmup(Effect):
-    """A camera still warming up: its disparity is off by `offset_px` exp(-t / `time_constant_s`) (native px; t the
-    time since the camera was opened), a bias that fades over the first stops whatever their range."""
-
-    name: ClassVar[str] = "disparity_warmup"
-    offset_px: float = 0.1
-    time_constant_s: float = 20.0
-
-    def frame(self, ctx: FrameContext, d_px: np.ndarray, valid: np.ndarray) -> None:
-        d_px += np.float32(self.offset_px * ctx.field.px_scale * np.exp(-ctx.time_s / self.time_constant_s))
-
-
-@register
-@dataclass
 class DisparityTilt(Effect):
     """A rectification turned about the vertical: the disparity is off by `coefficient_px` x (x = (u - cx) / fx, native
     px), a bias that grows across the image as Z^2 x. No bias effect of rig's has it: a user writes one."""

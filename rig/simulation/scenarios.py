@@ -101,9 +101,11 @@ BIAS: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], str]] =
     "disparity_offset": (lambda r: {"offset_px": r.uniform(0.03, 0.08)}, "disparity_offset"),
     "baseline_error": (lambda r: {"scale": r.uniform(0.002, 0.005)}, "scale"),
     "radial_disparity": (lambda r: {"coefficient_px": r.uniform(0.05, 0.15)}, "radial_disparity"),
-    "disparity_warmup": (lambda r: {"offset_px": r.uniform(0.1, 0.2), "time_constant_s": r.uniform(15.0, 40.0)},
-                         "warmup"),
+    "disparity_warmup": (lambda r: {"amplitude_px": r.uniform(0.1, 0.2), "tau_s": r.uniform(15.0, 40.0)}, "warmup"),
 }
+#: scenarios whose fake effect has another name: a warm-up of the disparity is the fake camera's `drift` (whose
+#: wander within a stop is the noise's `drift` scenario; here the bias it leaves between stops is what is named)
+FAKE_EFFECT_OF = {"disparity_warmup": "drift"}
 #: every scenario the blind test runs
 ALL_SCENARIOS = [*CHOICES, COARSE_DEPTH_UNIT, *PAIRS, *NOT_IN_CATALOGUE, *NOT_INDEPENDENT, *SATURATED_IR, *OUTSIDE,
                  *BIAS]
@@ -173,7 +175,7 @@ class Scenario:
             return [(name, dict(self.params.get(name, {}))) for name in self.effect.split("+")]
         if self.effect in SATURATED_IR:
             return [(SATURATED_IR[self.effect], {k: v for k, v in self.params.items() if k != "ir_gain"})]
-        return [(self.effect, dict(self.params))]
+        return [(FAKE_EFFECT_OF.get(self.effect, self.effect), dict(self.params))]
 
     def answer(self) -> dict[str, Any]:
         return {"scenario": "hidden", "seed": self.seed, "hidden_effect": self.effect, "parameters": self.params,
