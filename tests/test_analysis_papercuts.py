@@ -297,3 +297,14 @@ def test_missing_files_empty_maps_and_a_file_for_a_folder_are_one_line(small_rec
         err = capsys.readouterr()
         assert words in err.err and len(err.err.strip().splitlines()) == 1 and not err.out, (argv, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit.png"]
+
+
+def test_an_empty_import_folder_and_empty_models_are_named_as_such(small_recording, tmp_path, capsys):
+    """issue 51: an empty folder to import asked for intrinsics; `--models ''` was told to give --models."""
+    (tmp_path / "empty").mkdir()
+    assert main(["import", str(tmp_path / "empty"), "-o", str(tmp_path / "e.h5")]) == 2
+    assert "holds no stop folders of depth frames and no bags" in capsys.readouterr().err
+    for given in ("", ","):
+        assert main(["compare", str(small_recording), "--models", given]) == 2
+        assert f"--models {given!r} names no model; give them comma-separated" in capsys.readouterr().err
+    assert not (tmp_path / "e.h5").exists()

@@ -215,6 +215,12 @@ def cmd_import(args: argparse.Namespace) -> int:
     from ..reports.progress import TerminalProgress
 
     refuse_suffix(args.output, "-o", (".h5", ".hdf5"), "a recording (HDF5)")
+    source = Path(args.folder)
+    if source.is_dir() and not any(p for p in source.iterdir() if not p.name.startswith(".") and p.is_dir()
+                                   or p.suffix.lower() in (".bag", ".db3", ".mcap")):
+        # before the manifest's questions: without frames its intrinsics are of nothing
+        raise UsageError(f"{source} holds no stop folders of depth frames and no bags; put one folder of frames per "
+                         "stop in it (0.500m/, 1.000m/, ...) or give a bag (docs/import.md)")
     progress = None if verbosity(args) == QUIET else TerminalProgress()
     notes: list[str] = []
     if bag_source(Path(args.folder)):

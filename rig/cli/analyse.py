@@ -199,13 +199,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
         return cmd_compare_recordings(args)
     args.recording = args.recording[0]
+    if args.models is not None and not [m for m in args.models.split(",") if m.strip()]:
+        raise UsageError(f"--models {args.models!r} names no model; give them comma-separated, e.g. --models "
+                         "active,active+slant_range")
     if not args.models:
         raise UsageError("rig compare of one recording needs --models (e.g. --models active,active+slant_range); to "
                          "compare recordings, give two or more")
     if args.model or args.plot or args.report:
         raise UsageError("--model, --plot and --report are for comparing several recordings; with one, give --models")
     cat = catalogue_of(args)
-    models = [parse_model_option(m, cat) for m in args.models.split(",")]
+    models = [parse_model_option(m.strip(), cat) for m in args.models.split(",") if m.strip()]
     rows = []
     with progress_line(args, "rig compare") as progress:
         counter = ProgressCounter(progress, 1 + 2 * len(models))
