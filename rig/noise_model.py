@@ -59,6 +59,10 @@ class NoiseModel:
     def from_dict(cls, doc: dict[str, Any], source: str = "<dict>") -> "NoiseModel":
         if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
             found = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
+            family, _, number = str(found).partition("/")
+            if family == SCHEMA.split("/")[0] and number.isdigit() and int(number) > int(SCHEMA.split("/")[1]):
+                raise NoiseModelError(f"{source} is a {found} file, newer than this evaluator's {SCHEMA}; update rig "
+                                      "(pip install -U rig) or take rig/noise_model.py from the rig that wrote it")
             raise NoiseModelError(f"{source} is not a {SCHEMA} file (schema: {found!r}); export the model with rig export")
         for term in doc["sigma_terms"]:
             if term["effect"] not in TERMS:

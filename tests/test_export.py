@@ -394,3 +394,12 @@ def test_each_parameter_has_one_unit_in_the_export_and_in_rig_result(small_recor
                   "censoring": 50, "quantization": 60, "outliers": 70, "empirical(tails)": 80}
     for t in doc["sigma_terms"] + doc["after_sigma"]:
         assert t["stage"] == documented.get(t["effect"], 45 if t in doc["sigma_terms"] else 80), t["effect"]
+
+
+def test_a_newer_model_file_asks_for_a_newer_evaluator_not_an_export():
+    """issue 51: a rig.noise-model/2 file was told to "export the model with rig export"; the fix is a newer rig."""
+    with pytest.raises(NoiseModelError, match=r"<dict> is a rig.noise-model/2 file, newer than this evaluator's "
+                                              r"rig.noise-model/1; update rig"):
+        NoiseModel.from_dict({"schema": "rig.noise-model/2"})
+    with pytest.raises(NoiseModelError, match="is not a rig.noise-model/1 file .*; export the model with rig export"):
+        NoiseModel.from_dict({"schema": "something/3"})
