@@ -1,7 +1,7 @@
 """Where the bias model fails and which effect is missing: the loop of the noise diagnosis, for the depth's bias.
 
 Each stop's pixels are split into image regions (REGIONS: 4 x 3); each region gives the mean of Z - t (the curvature
-of f b / d taken out, `ModelData.z0_m`) with its standard error, its mean rho^2 and its stop's time. A model is the
+of f b / d taken out, `stop_figures.curvature_free_m`) with its standard error, its mean rho^2 and its stop's time. A model is the
 wall's offset plus effects (`bias_effects`), fitted by generalised least squares (maximum likelihood for normal
 errors) with two variances beside the regions' own: tau^2 shared by a stop's regions (the stage's repeatability: its
 position is off by the same at every pixel) and kappa^2 shared by a region over the stops (the wall's own relief,
@@ -26,6 +26,7 @@ from ..models import ModelData
 from ..models.data.model_data import stops_of
 from ..models.parts.result import chi2_sf
 from .bias_effects import BIAS_EFFECTS, BiasEffect
+from .stop_figures import curvature_free_m
 
 #: image regions (columns, rows) each stop's pixels are split into
 REGIONS = (4, 3)
@@ -64,7 +65,7 @@ def bias_groups(d: ModelData) -> BiasGroups | None:
     cols = np.minimum((REGIONS[0] * u / (u.max() + 1)).astype(int), REGIONS[0] - 1)
     rows = np.minimum((REGIONS[1] * v / (v.max() + 1)).astype(int), REGIONS[1] - 1)
     region = rows * REGIONS[0] + cols
-    dev = np.asarray(d.z0_m, float) - np.asarray(table.truth_m, float)[d.stop]
+    dev = curvature_free_m(d) - np.asarray(table.truth_m, float)[d.stop]
     rho2, xn, yn = np.asarray(d.rho2, float), np.asarray(d.x_norm, float), np.asarray(d.y_norm, float)
     out = {k: [] for k in ("t", "y", "se", "rho2", "time_s", "stop", "region", "x", "y_norm")}
     stops = [s for s in stops_of(d).tolist() if math.isfinite(table.truth_m[s]) and table.truth_m[s] > 0]

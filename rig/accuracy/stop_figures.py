@@ -3,14 +3,14 @@
 Intel's "Camera Depth Testing Methodology" and Orbbec's depth-quality metrics measure a flat target at known
 distances: **depth accuracy**, the signed median of measured minus true depth as a % of the distance; **spatial
 precision**, the RMS of the depth about a plane fitted to it; **fill rate**, the share of valid depth. Here each
-pixel's depth is its mean over the stop's frames with the curvature of Z = f b / d taken out (`ModelData.z0_m`: the
-mean of f b / d exceeds f b / mean d by sigma_Z^2 / Z), and the truth is the stop's distance as the stage measured it,
-else as it was commanded, else the plan's (`stop_checks.stop_truth`; `truth_source` says which). A perpendicular
-wall's depth (Z, not the range along the ray) is the distance at every pixel.
+pixel's depth is its mean over the stop's frames with the curvature of Z = f b / d taken out (the mean of f b / d
+exceeds f b / mean d by sigma_Z^2 / Z: `curvature_free_m`), and the truth is the stop's distance as the stage
+measured it, else as it was commanded, else the plan's (`stop_checks.stop_truth`; `truth_source` says which). A
+perpendicular wall's depth (Z, not the range along the ray) is the distance at every pixel.
 
 Each figure carries the error sampling noise gives it: the median's standard error is sqrt(pi / 2) times the
 pixels' robust spread (1.4826 MAD) over sqrt(N); the spatial RMS is compared with what the pixels' own temporal noise
-adds to it, sqrt(mean(var_i / n_i)), var_i the noise model's variance where a fit is given (else the sample's).
+adds to it, sqrt(mean(var_i / n_i)), var_i the pixel's own sample variance (or a noise model's, where given).
 """
 
 from __future__ import annotations
@@ -46,19 +46,30 @@ class StopAccuracy:
     fill_rate: float
 
 
+def curvature_free_m(d: ModelData) -> np.ndarray:
+    """Each pixel's mean depth less the curvature of Z = f b / d: E[Z] = Z0 (1 + v / Z0^2) to second order (eq.
+    dist_to_disp), so Z0 = Z - v / Z with v the pixel's own sample variance (unbiased for it; m). One vectorised
+    pass: `ModelData.z0_m`, which takes v from the neighbours for the noise models' sake, costs a pass over every
+    pixel's neighbourhood (0.6 s of a full sweep's `rig fit`)."""
+    return np.asarray(d.z_m, dtype=float) - np.asarray(d.s2_m2, dtype=float) / np.asarray(d.z_m, dtype=float)
+
+
 def stop_accuracy(d: ModelData, var_m2: np.ndarray | None = None) -> list[StopAccuracy]:
     """The figures of every stop of `d` whose truth is known (`var_m2`: the noise model's variance of each row, for
-    the spatial RMS's noise; the sample variance when None)."""
+    the spatial RMS's noise; the pixels' own sample variance when None)."""
     table = d.stops
     if table is None or table.truth_m is None:
         return []
     if var_m2 is None:
         var_m2 = d.s2_m2
+    z_all = curvature_free_m(d)
+    slices = d.stop_slices()  # rows come stop by stop: slices, not a mask over every row per stop
+    by_stop = {int(d.stop[sl.start]): sl for sl in slices} if slices is not None else None
     out = []
     for s in stops_of(d).tolist():
         truth = float(table.truth_m[s])
-        rows = np.flatnonzero(d.stop == s)
-        z = np.asarray(d.z0_m[rows], dtype=float)
+        rows = np.arange(by_stop[s].start, by_stop[s].stop) if by_stop else np.flatnonzero(d.stop == s)
+        z = z_all[rows]
         ok = np.isfinite(z) & (z > 0)
         if not math.isfinite(truth) or truth <= 0 or np.count_nonzero(ok) < 3:
             continue
