@@ -25,6 +25,7 @@ import numpy as np
 from ..models import ModelData
 from ..models.data.model_data import stops_of
 from ..models.parts.result import chi2_sf
+from .bias import model_bias
 from .bias_effects import BIAS_EFFECTS, BiasEffect
 from .stop_figures import curvature_free_m
 
@@ -101,8 +102,7 @@ def predicted_bias(g: BiasGroups, effects: tuple[BiasEffect, ...], p: dict[str, 
     for e in effects:
         ds, dd = e.add(p, g)
         s_total, delta = s_total + ds, delta + dd
-    fb = g.fb_px_m
-    return (1.0 + s_total) * fb / (fb / (g.t + p["offset_m"]) + delta) - g.t
+    return model_bias(g.t, {"offset_m": p["offset_m"], "scale": s_total, "disparity_offset_px": delta}, g.fb_px_m)
 
 
 @dataclass
