@@ -22,6 +22,7 @@ import numpy as np
 
 from ..models import ModelData
 from ..models.data.model_data import stops_of
+from .tilted_wall import WallPlane, fit_plane, plane_z_m, planned_z_m, wall_plane
 
 #: sqrt(pi / 2): the standard error of a normal sample's median over that of its mean
 MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2)
@@ -95,3 +96,44 @@ def _plane_residuals(z: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     a = np.column_stack([np.ones_like(z), u - u.mean(), v - v.mean()])
     coef, *_ = np.linalg.lstsq(a, z, rcond=None)
     return z - a @ coef
+
+
+def tilted_stop_accuracy(d: ModelData, var_m2: np.ndarray | None, planned_tilt_deg: float
+                         ) -> tuple[list[StopAccuracy], list[WallPlane]]:
+    """The figures of every stop of `d` before a tilted wall (rig.accuracy.tilted_wall): the plane fitted to each
+    stop's depth, the depth accuracy against the plan's plane (distance: the stop's truth; tilt: `planned_tilt_deg`,
+    its sign from the fit) and the spatial RMS about the fitted plane. Returns the figures and each stop's WallPlane."""
+    table = d.stops
+    x_all, y_all = d.covariate("x_norm"), d.covariate("y_norm")
+    if table is None or table.truth_m is None or x_all is None or y_all is None:
+        return [], []
+    if var_m2 is None:
+        var_m2 = d.s2_m2
+    z_all = curvature_free_m(d)
+    figures, planes = [], []
+    for s in stops_of(d).tolist():
+        truth = float(table.truth_m[s])
+        rows = np.flatnonzero(d.stop == s)
+        var_mean = np.asarray(var_m2, dtype=float)[rows] / d.n[rows]
+        z, x, y = z_all[rows], np.asarray(x_all, float)[rows], np.asarray(y_all, float)[rows]
+        ok = np.isfinite(z) & (z > 0) & np.isfinite(var_mean) & (var_mean > 0) & np.isfinite(x) & np.isfinite(y)
+        if not math.isfinite(truth) or truth <= 0 or np.count_nonzero(ok) < 4:
+            continue
+        rows, z, x, y, var_mean = rows[ok], z[ok], x[ok], y[ok], var_mean[ok]
+        coef, cov, chi2, dof = fit_plane(z, var_mean, x, y)
+        plane = wall_plane(coef, cov, chi2, dof, truth, planned_tilt_deg)
+        planned = planned_z_m(plane, x)
+        dev = z - planned
+        n = len(dev)
+        rel = dev / planned
+        median = float(np.median(rel))
+        spread = MAD_TO_SD * float(np.median(np.abs(rel - median)))
+        about = z - plane_z_m(coef, x, y)
+        figures.append(StopAccuracy(
+            stop=table.label[s], truth_m=truth, truth_source=table.truth_source[s], pixels=n,
+            mean_bias_m=float(np.mean(dev)), mean_bias_se_m=float(np.std(dev, ddof=1) / math.sqrt(n)),
+            depth_accuracy_pct=100.0 * median, depth_accuracy_se_pct=100.0 * MEDIAN_SE_FACTOR * spread / math.sqrt(n),
+            spatial_rms_m=float(np.sqrt(np.mean(about**2))), spatial_rms_noise_m=float(np.sqrt(np.mean(var_mean))),
+            fill_rate=float(np.mean(d.fill[rows])) if d.fill is not None else math.nan))
+        planes.append(plane)
+    return figures, planes

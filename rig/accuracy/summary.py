@@ -10,7 +10,8 @@ import numpy as np
 
 from ..models import ModelData
 from .bias import MEANING, UNITS, BiasFit, fit_bias
-from .stop_figures import StopAccuracy, stop_accuracy
+from .stop_figures import StopAccuracy, stop_accuracy, tilted_stop_accuracy
+from .tilted_wall import WallPlane
 
 
 @dataclass(frozen=True)
@@ -20,6 +21,7 @@ class Accuracy:
     stops: tuple[StopAccuracy, ...]
     bias: BiasFit | None
     why_not: str = ""  # why nothing was measured, in words ("" when it was, or when no stop's truth is known)
+    walls: tuple[WallPlane, ...] = ()  # the tilted protocol's fitted wall, one per stop (rig.accuracy.tilted_wall)
 
     @property
     def truth_source(self) -> str:
@@ -31,16 +33,25 @@ class Accuracy:
 
 #: the protocols whose wall is perpendicular to the optical axis: Z is the stop's distance at every pixel
 FLAT_ON = ("perpendicular", "import")
-TILTED_NOT_YET = ("the tilted protocol's wall is at an angle, and its plane is not modelled yet: measure accuracy on a "
-                  "perpendicular recording")
+#: why a tilted stop has no bias model, in words (rig.accuracy.tilted_wall)
+TILTED_NO_BIAS = ("not fitted on a tilted wall: a plane of unknown distance and angle absorbs a depth scale and a "
+                  "disparity offset (1/Z stays linear in x); measure them on a perpendicular sweep")
 
 
-def accuracy_of(d: ModelData, var_m2: np.ndarray | None = None, protocol: str = "perpendicular") -> Accuracy:
+def accuracy_of(d: ModelData, var_m2: np.ndarray | None = None, protocol: str = "perpendicular",
+                protocol_params: dict[str, Any] | None = None) -> Accuracy:
     """The accuracy of the recording `d` holds (`var_m2`: the noise model's variance of each row, see
-    `stop_accuracy`); none for a protocol whose wall is not perpendicular (`why_not` says so)."""
+    `stop_accuracy`). The tilted protocol's stops are measured against their fitted plane and the plan's
+    (`protocol_params`' `tilt_deg`; rig.accuracy.tilted_wall), with no bias model; a protocol whose wall is not known
+    is not measured (`why_not` says so)."""
+    if protocol == "tilted":
+        tilt = (protocol_params or {}).get("tilt_deg")
+        tilt = float(tilt) if isinstance(tilt, (int, float)) and not isinstance(tilt, bool) else math.nan
+        stops, walls = tilted_stop_accuracy(d, var_m2, tilt)
+        return Accuracy(tuple(stops), None, walls=tuple(walls))
     if protocol not in FLAT_ON:
-        return Accuracy((), None, TILTED_NOT_YET if protocol == "tilted" else
-                        f"the {protocol} protocol's wall is not known to face the camera: accuracy is not measured")
+        return Accuracy((), None, f"the {protocol} protocol's wall is not known to face the camera: accuracy is not "
+                                  "measured")
     stops = stop_accuracy(d, var_m2)
     return Accuracy(tuple(stops), fit_bias(stops, d.fb_px_m))
 
@@ -55,6 +66,8 @@ def accuracy_lines(a: Accuracy) -> list[str]:
     lines = [f"    accuracy against the {a.truth_source} distance: depth accuracy {worst.depth_accuracy_pct:+.3f} % "
              f"(+/- {worst.depth_accuracy_se_pct:.3f}) at {worst.stop}, the worst of {len(a.stops)} stops; spatial RMS "
              f"{1e3 * worst.spatial_rms_m:.3g} mm there (noise alone {1e3 * worst.spatial_rms_noise_m:.3g} mm)"]
+    if a.walls:
+        return lines + [wall_line(w) for w in a.walls] + [f"    bias model: {TILTED_NO_BIAS}"]
     b = a.bias
     if b is None:
         return lines + ["    bias model: not fitted (it needs two stops or more whose distance is known)"]
@@ -66,6 +79,17 @@ def accuracy_lines(a: Accuracy) -> list[str]:
                "wall), taken into the errors" if not b.within_noise else
                (": within the pixels' noise" if b.dof > 0 else ""))
     return lines + [f"    bias model: {', '.join(parts)} ({fit}{scatter})"]
+
+
+def wall_line(w: WallPlane) -> str:
+    """The fitted wall against the plan's, in one line."""
+    planned = (f"plan {w.planned_distance_m:.4f} m, {w.planned_tilt_deg:+.2f} deg" if math.isfinite(w.planned_tilt_deg)
+               else f"plan {w.planned_distance_m:.4f} m, tilt not given")
+    relief = (f"; the pixels scatter {w.relief_ratio:.2g} times their noise about it (the wall's relief), taken into "
+              "the errors" if w.relief_ratio > 1 else "")
+    return (f"    wall fitted: {w.distance_m:.5f} m +/- {1e3 * w.distance_se_m:.2g} mm on the optical axis, tilted "
+            f"{w.tilt_deg:+.3f} +/- {w.tilt_se_deg:.3f} deg about the vertical and {w.tilt_x_deg:+.3f} +/- "
+            f"{w.tilt_x_se_deg:.3f} deg about the horizontal ({planned}){relief}")
 
 
 def accuracy_words(a: Accuracy) -> str:
@@ -97,6 +121,7 @@ def accuracy_json(a: Accuracy) -> dict[str, Any]:
     return {
         "truth_source": a.truth_source if a.stops else None, "why_not": a.why_not or None,
         "stops": [{k: (number(v) if isinstance(v, float) else v) for k, v in asdict(s).items()} for s in a.stops],
+        "walls": [{k: (number(v) if isinstance(v, float) else v) for k, v in asdict(w).items()} for w in a.walls],
         "bias": None if b is None else {
             "parameters": [{"name": n, "value": b.values[n], "error": b.errors[n], "unit": UNITS[n],
                             "meaning": MEANING[n]} for n in b.names],

@@ -308,9 +308,9 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     with progress_line(args, "rig accuracy"):
         d, notes = model_data(args.recording)
         with Recording(args.recording) as rec:
-            protocol = rec.protocol
-        acc = accuracy_of(d, None, protocol)
-        groups = bias_groups(d) if not acc.why_not else None
+            protocol, params = rec.protocol, rec.protocol_params
+        acc = accuracy_of(d, None, protocol, params)
+        groups = bias_groups(d) if not (acc.why_not or acc.walls) else None
         dg = diagnose_bias(groups, {**BIAS_EFFECTS, **users}) if groups is not None else None
     if args.json:
         import json
@@ -356,8 +356,8 @@ def _accuracy(path, fit, d):
     from ..accuracy import accuracy_of
 
     with Recording(path) as rec:
-        protocol = rec.protocol
-    return accuracy_of(d, None, protocol)
+        protocol, params = rec.protocol, rec.protocol_params
+    return accuracy_of(d, None, protocol, params)
 
 
 def _write_table(args: argparse.Namespace, fit, d, acc=None) -> None:

@@ -86,7 +86,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         counter.finish()
         with Recording(args.recording) as rec:
             var = np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape)
-            bias = bias_export(accuracy_of(d, var, rec.protocol))
+            bias = bias_export(accuracy_of(d, var, rec.protocol, rec.protocol_params))
             doc = noise_model_document(fit, d, rec, args.recording, h, notes, bias)
     out.parent.mkdir(parents=True, exist_ok=True)  # a folder that does not exist yet is made, as for every output
     out.write_text(json.dumps(doc, indent=1) + "\n")

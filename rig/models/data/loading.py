@@ -9,6 +9,8 @@ images and no second copy of the rows are held while the next stop is read.
 
 from __future__ import annotations
 
+import json
+
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -47,6 +49,7 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
     complete stop, with the stop sources their covariates come from. A stop that contradicts itself or the rest
     (rig.models.data.stop_checks) is left out, and the recording notes it (Recording.exclude)."""
     cal = recording.calibration
+    measured = _stage_measures(recording)
     excluded = dict(_excluded or {})
     labels = [label for label in recording.stop_labels() if label not in excluded]
     rows = _Rows(len(labels) * cal.width * cal.height)
@@ -78,7 +81,7 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
             keep &= ~zero
         rows.add(i, s, keep)
         sources.append(StopSource.of(stop, keep, cal, BRIGHTNESS_WINDOW_PX))
-        _add_stop_facts(facts, stop)
+        _add_stop_facts(facts, stop, measured)
     zero = zero_variance_problems(facts["label"], zero_shares)
     if zero:  # found only once every stop is read: read again without them (a damaged file only)
         return read_rows(recording, min_count=min_count, positive_variance=positive_variance,
@@ -144,7 +147,17 @@ class _Rows:
                 "stop": trim(self.stop), "u_px": trim(self.u), "v_px": trim(self.v)}
 
 
-def _add_stop_facts(table: dict[str, list], stop: StopData) -> None:
+def _stage_measures(recording: Recording) -> bool:
+    """Whether the recording's stage measured its positions: not `none:` (drivers.stage.NoStage), whose "measured"
+    position is the one the plan asked the operator to set."""
+    try:
+        stage = json.loads(str(recording.attrs.get("stage", "{}")))
+    except ValueError:
+        return True
+    return not (isinstance(stage, dict) and stage.get("name") == "none")
+
+
+def _add_stop_facts(table: dict[str, list], stop: StopData, stage_measures: bool = True) -> None:
     series = stop.series
     size = stop.stats.count.size
     table["label"].append(stop.label)
@@ -155,7 +168,7 @@ def _add_stop_facts(table: dict[str, list], stop: StopData) -> None:
     table["n_valid"].append(float(np.mean(frac)) * size if len(frac) and np.isfinite(frac).all() else np.nan)
     ts = series.timestamp_ms if series is not None else np.array([])
     table["time_s"].append(float(np.mean(ts)) / 1000.0 if len(ts) and np.isfinite(ts).all() else np.nan)
-    truth_m, source = stop_truth(stop)
+    truth_m, source = stop_truth(stop, stage_measures)
     table["truth_m"].append(truth_m)
     table["truth_source"].append(source)
 

@@ -30,9 +30,14 @@ _LABEL_M = re.compile(r"^([0-9]+(?:\.[0-9]+)?)m$")
 TRUTH_SOURCES = ("stage measured", "stage commanded", "plan")
 
 
-def stop_truth(stop) -> tuple[float, str]:
+def stop_truth(stop, stage_measures: bool = True) -> tuple[float, str]:
     """Where the stop says the wall was, m, and how it knows (TRUTH_SOURCES): the stage's measured position, else the
-    commanded one, else the plan's distance in its label ('2.500m'); (NaN, "") when nothing says."""
+    commanded one, else the plan's distance in its label ('2.500m'); (NaN, "") when nothing says. Without a stage
+    that measures (`none:`, the camera placed by hand) the commanded position is the plan's distance, and says so."""
+    if not stage_measures:
+        z = stop.commanded_position_m
+        if z is not None and math.isfinite(z) and z > 0:
+            return float(z), TRUTH_SOURCES[2]
     for z, source in zip((stop.measured_position_m, stop.commanded_position_m), TRUTH_SOURCES):
         if z is not None and math.isfinite(z) and z > 0:
             return float(z), source
