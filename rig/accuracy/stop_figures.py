@@ -8,9 +8,12 @@ exceeds f b / mean d by sigma_Z^2 / Z: `curvature_free_m`), and the truth is the
 measured it, else as it was commanded, else the plan's (`stop_checks.stop_truth`; `truth_source` says which). A
 perpendicular wall's depth (Z, not the range along the ray) is the distance at every pixel.
 
-Each figure carries the error sampling noise gives it: the median's standard error is sqrt(pi / 2) times the
-pixels' robust spread (1.4826 MAD) over sqrt(N); the spatial RMS is compared with what the pixels' own temporal noise
-adds to it, sqrt(mean(var_i / n_i)), var_i the pixel's own sample variance (or a noise model's, where given).
+The stop's mean bias (the bias model's input) is the maximum-likelihood mean: each pixel weighted by its noise's
+variance plus the wall's relief, estimated from the pixels' scatter (rig.accuracy.pixel_weights), with its
+Cramer-Rao error. Each figure carries the error sampling noise gives it: the median's standard error is
+sqrt(pi / 2) times the pixels' robust spread (1.4826 MAD) over sqrt(N); the spatial RMS is compared with what the
+pixels' temporal noise adds to it, sqrt(mean(var_i / n_i)), var_i the noise model's variance where given, else the
+stop's own power law of its pixels' variance in Z.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 
 from ..models import ModelData
 from ..models.data.model_data import stops_of
+from .pixel_weights import noise_of_mean, relief_weighted_fit
 from .tilted_wall import WallPlane, fit_plane, plane_z_m, planned_z_m, wall_plane
 
 #: sqrt(pi / 2): the standard error of a normal sample's median over that of its mean
@@ -57,12 +61,11 @@ def curvature_free_m(d: ModelData) -> np.ndarray:
 
 def stop_accuracy(d: ModelData, var_m2: np.ndarray | None = None) -> list[StopAccuracy]:
     """The figures of every stop of `d` whose truth is known (`var_m2`: the noise model's variance of each row, for
-    the spatial RMS's noise; the pixels' own sample variance when None)."""
+    the pixels' weights and the spatial RMS's noise; the stop's own power law of its pixels' variance when None:
+    rig.accuracy.pixel_weights)."""
     table = d.stops
     if table is None or table.truth_m is None:
         return []
-    if var_m2 is None:
-        var_m2 = d.s2_m2
     z_all = curvature_free_m(d)
     slices = d.stop_slices()  # rows come stop by stop: slices, not a mask over every row per stop
     by_stop = {int(d.stop[sl.start]): sl for sl in slices} if slices is not None else None
@@ -75,20 +78,27 @@ def stop_accuracy(d: ModelData, var_m2: np.ndarray | None = None) -> list[StopAc
         if not math.isfinite(truth) or truth <= 0 or np.count_nonzero(ok) < 3:
             continue
         rows, z = rows[ok], z[ok]
+        v = _noise_of_mean(d, rows, var_m2)
         dev = z - truth
         n = len(dev)
+        mean = relief_weighted_fit(dev, v, np.ones((n, 1)))
         median = float(np.median(dev))
         spread = MAD_TO_SD * float(np.median(np.abs(dev - median)))
         plane = _plane_residuals(z, np.asarray(d.u_px[rows], float), np.asarray(d.v_px[rows], float))
-        noise = float(np.sqrt(np.mean(np.asarray(var_m2, dtype=float)[rows] / d.n[rows])))
         out.append(StopAccuracy(
             stop=table.label[s], truth_m=truth, truth_source=table.truth_source[s], pixels=n,
-            mean_bias_m=float(np.mean(dev)), mean_bias_se_m=float(np.std(dev, ddof=1) / math.sqrt(n)),
+            mean_bias_m=float(mean.coef[0]), mean_bias_se_m=float(math.sqrt(mean.covariance[0, 0])),
             depth_accuracy_pct=100.0 * median / truth,
             depth_accuracy_se_pct=100.0 * MEDIAN_SE_FACTOR * spread / math.sqrt(n) / truth,
-            spatial_rms_m=float(np.sqrt(np.mean(plane**2))), spatial_rms_noise_m=noise,
+            spatial_rms_m=float(np.sqrt(np.mean(plane**2))), spatial_rms_noise_m=float(np.sqrt(np.mean(v))),
             fill_rate=float(np.mean(d.fill[rows])) if d.fill is not None else math.nan))
     return out
+
+
+def _noise_of_mean(d: ModelData, rows: np.ndarray, var_m2: np.ndarray | None) -> np.ndarray:
+    """The variance of each of the stop's pixels' mean depth (rig.accuracy.pixel_weights.noise_of_mean), m^2."""
+    return noise_of_mean(np.asarray(d.z_m, float)[rows], np.asarray(d.s2_m2, float)[rows], np.asarray(d.n)[rows],
+                         None if var_m2 is None else np.asarray(var_m2, float)[rows])
 
 
 def _plane_residuals(z: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -107,14 +117,12 @@ def tilted_stop_accuracy(d: ModelData, var_m2: np.ndarray | None, planned_tilt_d
     x_all, y_all = d.covariate("x_norm"), d.covariate("y_norm")
     if table is None or table.truth_m is None or x_all is None or y_all is None:
         return [], []
-    if var_m2 is None:
-        var_m2 = d.s2_m2
     z_all = curvature_free_m(d)
     figures, planes = [], []
     for s in stops_of(d).tolist():
         truth = float(table.truth_m[s])
         rows = np.flatnonzero(d.stop == s)
-        var_mean = np.asarray(var_m2, dtype=float)[rows] / d.n[rows]
+        var_mean = _noise_of_mean(d, rows, var_m2)
         z, x, y = z_all[rows], np.asarray(x_all, float)[rows], np.asarray(y_all, float)[rows]
         ok = np.isfinite(z) & (z > 0) & np.isfinite(var_mean) & (var_mean > 0) & np.isfinite(x) & np.isfinite(y)
         if not math.isfinite(truth) or truth <= 0 or np.count_nonzero(ok) < 4:

@@ -5,9 +5,9 @@ A plane n . X = p seen through a pinhole has, along the ray X = Z (x, y, 1) (x =
     1 / Z = (n_z + n_x x + n_y y) / p = a + b x + c y        (the plan's wall: Z = D / (1 + tan(t) x), fakes/physics)
 
 so the inverse depth is linear in x and y. The plane is fitted as that linear model by weighted least squares, each
-pixel weighted by the variance of its mean 1/Z, var_Z / (n Z^4) (var_Z the noise model's variance where given, else
-the pixel's own), the maximum-likelihood estimate for normal errors; its Cramer-Rao covariance is (A^T W A)^-1, scaled
-by chi^2 / dof where the wall's relief scatters the pixels beyond their noise (the Birge ratio; said in the report).
+pixel weighted by the variance of its mean 1/Z: its noise, var_Z / (n Z^4), plus the wall's relief estimated from the
+pixels' scatter (rig.accuracy.pixel_weights), the maximum-likelihood estimate for normal errors, with its Cramer-Rao
+covariance; chi^2 at the noise alone says how far the relief scatters the pixels beyond it.
 The wall's distance on the optical axis is D = 1 / a, m; its tilt about the vertical axis atan(b / a), about the
 horizontal atan(c / a), degrees.
 
@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.parts.result import chi2_sf
+from .pixel_weights import relief_weighted_fit
 
 
 @dataclass(frozen=True)
@@ -58,22 +59,14 @@ class WallPlane:
 
 def fit_plane(z_m: np.ndarray, var_mean_m2: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                                              float, int]:
-    """1/Z = a + b x + c y by weighted least squares (module docstring): (a, b, c) in 1/m, their covariance (scaled by
-    the Birge ratio when chi^2 > dof), chi^2 at the pixels' noise, dof. `var_mean_m2`: the variance of each pixel's
-    mean depth, m^2."""
-    inv = 1.0 / z_m
-    w = z_m**4 / var_mean_m2  # 1 / var(1/Z): var(1/Z) = var(Z) / Z^4 to first order
-    xc, yc = float(np.average(x, weights=w)), float(np.average(y, weights=w))  # centred: a well-conditioned solve
+    """1/Z = a + b x + c y, each pixel weighted by its noise and the wall's relief (rig.accuracy.pixel_weights; the
+    variance of 1/Z is var(Z) / Z^4 to first order): (a, b, c) in 1/m, their Cramer-Rao covariance, chi^2 at the
+    noise alone, dof. `var_mean_m2`: the variance of each pixel's mean depth, m^2."""
+    xc, yc = float(np.mean(x)), float(np.mean(y))  # centred: a well-conditioned solve
     a = np.column_stack([np.ones_like(x), x - xc, y - yc])
-    aw = a * w[:, None]
-    normal = a.T @ aw
-    coef = np.linalg.solve(normal, aw.T @ inv)
-    r = inv - a @ coef
-    chi2 = float(np.sum(w * r * r))
-    dof = len(z_m) - 3
-    cov = np.linalg.inv(normal) * max(1.0, chi2 / dof if dof > 0 else 1.0)
+    fit = relief_weighted_fit(1.0 / z_m, var_mean_m2 / z_m**4, a)
     shift = np.array([[1.0, -xc, -yc], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # back to a + b x + c y
-    return shift @ coef, shift @ cov @ shift.T, chi2, dof
+    return shift @ fit.coef, shift @ fit.covariance @ shift.T, fit.chi2_noise, fit.dof
 
 
 def plane_z_m(coef: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -8,8 +8,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from .options import EXIT_UNDETERMINED, refuse_suffix, refuse_unwritable
 from .usage import UsageError
 
@@ -85,8 +83,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         h = headline(fit, d)
         counter.finish()
         with Recording(args.recording) as rec:
-            var = np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape)
-            bias = bias_export(accuracy_of(d, var, rec.protocol, rec.protocol_params))
+            # the pixels weighted as rig fit weighs them (rig.accuracy.pixel_weights): the same bias in both
+            bias = bias_export(accuracy_of(d, None, rec.protocol, rec.protocol_params))
             doc = noise_model_document(fit, d, rec, args.recording, h, notes, bias)
     out.parent.mkdir(parents=True, exist_ok=True)  # a folder that does not exist yet is made, as for every output
     out.write_text(json.dumps(doc, indent=1) + "\n")

@@ -92,8 +92,7 @@ def summarise(path: str, fit, d, h, measured, rec, notes: list[str], projector_o
     errors = {n: float(fit.errors.get(n, float("nan"))) for n, _ in fit.model.free()}
     free = [n for n, _ in fit.model.free()]
     units = {n: p.unit for n, p in fit.model.parameters()}
-    bias = accuracy_of(d, np.broadcast_to(np.asarray(fit.predict(d).var_m2, dtype=float), d.z_m.shape),
-                       rec.protocol, rec.protocol_params).bias
+    bias = accuracy_of(d, None, rec.protocol, rec.protocol_params).bias  # as rig fit and rig export weigh the pixels
     if bias is not None:  # the calibration bias against the stage: compared and scattered as the noise's parameters
         for n in bias.names:
             values[f"bias.{n}"], errors[f"bias.{n}"], units[f"bias.{n}"] = bias.values[n], bias.errors[n], UNITS[n]
