@@ -50,6 +50,36 @@ def test_an_independent_generators_miscalibration_is_found_and_given_back(tmp_pa
     assert dg.steps[-1].rms_mm < 0.1 * dg.steps[0].rms_mm
 
 
+
+def test_a_warm_up_over_stops_in_mixed_order_is_beyond_noise_by_range(tmp_path):
+    """fakes/outside's thermal_drift (written without reading rig) recorded near, far, near ... : with no clock in a
+    folder the loop cannot name a warm-up, but the stops scatter far beyond the stage's tolerance, and it says so;
+    the ascending sweep (range and time in one order) is taken for disparity offset and scale, and says there is no
+    clock."""
+    from fakes.outside import SCENES
+    from protocols.recording import Recording
+    from rig.accuracy.bias_loop import stage_tolerance
+    from rig.accuracy.path_text import bias_path_lines
+    from rig.simulation.scenarios import import_folder
+
+    mixed = [0.5, 3.0, 0.75, 2.75, 1.0, 2.5, 1.25, 2.25, 1.5, 2.0, 1.75]
+    results = {}
+    for name, opts in (("mixed", {"stops_m": mixed}), ("up", {})):
+        folder = SCENES["thermal_drift"](1, tmp_path / name, **opts)
+        path = import_folder(folder, tmp_path / f"{name}.h5")
+        with Recording(path) as rec:
+            tolerance = stage_tolerance(rec)
+        dg = diagnose_bias(bias_groups(ModelData.from_recording(path), tolerance))
+        results[name] = (dg, "\n".join(bias_path_lines(dg)))
+    dg, text = results["mixed"]
+    assert not dg.has_clock and dg.stage_tolerance_m == 0.002
+    chi2, dof, p = dg.final.checks["by range"]
+    assert not dg.final.within_noise and p < 1e-3, dg.final.checks
+    assert "more than the stage's tolerance (2 mm)" in text and "no clock" in text, text
+    dg, text = results["up"]
+    assert sorted(dg.added) == ["disparity_offset", "scale"] and "this recording has no clock" in text, text
+
+
 USER_TILT = '''
 from rig.accuracy import BiasEffect, BiasParam
 

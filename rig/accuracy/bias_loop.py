@@ -10,9 +10,12 @@ the same at every stop), both profiled out by maximum likelihood. BIC counts the
 The loop: from the offset alone, each effect not in the model is fitted with it; the one that lowers BIC most is
 added while it lowers BIC by more than 10 (very strong evidence, as for noise effects); the model it stops at is
 within noise when its residuals, each region's less its stop's mean, agree with their errors by radius and by
-position (chi^2, p >= 0.001). By range there is no such check (the stage's scatter takes what no effect explains):
-a model the path went on from is beyond noise by the evidence of the effect it added. Each step's RMS misfit (the
-regions' residuals, in mm) shows the error falling.
+position (chi^2, p >= 0.001), and, where the stage's tolerance is known, by range: each stop's mean residual against
+its error and the stage's tolerance (the distance the stage may be off before the runner refuses to capture, taken as
+one standard deviation), so the stage's scatter cannot take a bias far larger than any stage's error. A model the path
+went on from is beyond noise by the evidence of the effect it added. Each step's RMS misfit (the regions' residuals,
+in mm) shows the error falling. Without a clock (a folder import) every stop's time is 0 and a bias that changes with
+time cannot be found; `has_clock` says so.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 from ..models import ModelData
 from ..models.data.model_data import stops_of
+from ..models.data.stop_checks import stage_info
 from ..models.parts.result import chi2_sf
 from .bias import model_bias
 from .bias_effects import BIAS_EFFECTS, BiasEffect
@@ -50,13 +54,16 @@ class BiasGroups:
     fb_px_m: float
     x: np.ndarray | None = None
     y_norm: np.ndarray | None = None
+    stage_tolerance_m: float | None = None  # the check by range's scale (module docstring); None: no check by range
+    has_clock: bool = True  # the stops' times are known
 
     def __len__(self) -> int:
         return len(self.y)
 
 
-def bias_groups(d: ModelData) -> BiasGroups | None:
-    """The regions of the stops whose truth is known (None with fewer than three such stops)."""
+def bias_groups(d: ModelData, stage_tolerance_m: float | None = None) -> BiasGroups | None:
+    """The regions of the stops whose truth is known (None with fewer than three such stops); `stage_tolerance_m`:
+    the recording's stage's (`stage_tolerance`), for the check by range."""
     table = d.stops
     if table is None or table.truth_m is None:
         return None
@@ -92,8 +99,16 @@ def bias_groups(d: ModelData) -> BiasGroups | None:
             out["stop"].append(s)
             out["region"].append(r)
     a = {k: np.array(v) for k, v in out.items()}
+    clock = bool(np.isfinite(table.time_s[stops]).any())
     return BiasGroups(a["t"], a["y"], a["se"], a["rho2"], a["time_s"], a["stop"].astype(int), a["region"].astype(int),
-                      d.fb_px_m, a["x"], a["y_norm"])
+                      d.fb_px_m, a["x"], a["y_norm"], stage_tolerance_m, clock)
+
+
+def stage_tolerance(recording) -> float | None:
+    """The tolerance of the stage an open `Recording` was made with, m (drivers.stage.Stage.tolerance_m), or None."""
+    tol = stage_info(recording).get("tolerance_m")
+    ok = isinstance(tol, (int, float)) and not isinstance(tol, bool) and math.isfinite(tol) and tol > 0
+    return float(tol) if ok else None
 
 
 def predicted_bias(g: BiasGroups, effects: tuple[BiasEffect, ...], p: dict[str, float]) -> np.ndarray:
@@ -210,7 +225,20 @@ def fit_bias_model(g: BiasGroups, effects: tuple[BiasEffect, ...],
     fit = BiasModelFit(tuple(effects), p, {n: float(math.sqrt(cov_p[i, i])) for i, n in enumerate(names)}, ll,
                        -2 * ll + k * math.log(len(g)), math.sqrt(tau2), math.sqrt(kappa2), residual)
     fit.checks = _checks(g, residual, kappa2)
+    if g.stage_tolerance_m is not None:
+        fit.checks["by range"] = _range_check(g, residual, len(names))
     return fit
+
+
+def _range_check(g: BiasGroups, r: np.ndarray, n_params: int) -> tuple[float, int, float]:
+    """Each stop's weighted mean residual against its error and the stage's tolerance (module docstring)."""
+    w = 1.0 / g.se**2
+    chi2, stops = 0.0, np.unique(g.stop)
+    for s in stops:
+        m = g.stop == s
+        chi2 += float((np.sum(w[m] * r[m]) / np.sum(w[m])) ** 2 / (1.0 / np.sum(w[m]) + g.stage_tolerance_m**2))
+    dof = max(len(stops) - n_params, 1)
+    return chi2, dof, chi2_sf(chi2, dof)
 
 
 def _checks(g: BiasGroups, r: np.ndarray, kappa2: float) -> dict[str, tuple[float, int, float]]:
@@ -244,6 +272,8 @@ class BiasDiagnosis:
     steps: list[BiasModelFit]
     candidates: list[list[tuple[str, float]]]  # per step: (effect, dBIC) of each tried
     stopped: str
+    stage_tolerance_m: float | None = None  # BiasGroups'
+    has_clock: bool = True
 
     @property
     def added(self) -> list[str]:
@@ -270,4 +300,4 @@ def diagnose_bias(g: BiasGroups, catalogue: dict[str, BiasEffect] | None = None)
             stopped = "no bias effect lowers BIC by more than 10" if ranked else "every bias effect is in"
             break
         steps.append(ranked[0][2])
-    return BiasDiagnosis(steps, tried, stopped)
+    return BiasDiagnosis(steps, tried, stopped, g.stage_tolerance_m, g.has_clock)

@@ -33,11 +33,23 @@ def bias_path_lines(dg: BiasDiagnosis) -> list[str]:
     final = dg.final
     lines.append(f"  The path stopped: {dg.stopped}.")
     lines.append(f"Final: {final.name}: " + "; ".join(_value(n, final) for n in final.values))
-    lines.append(f"  checks: {_checks(final)}; the stops scatter {1e3 * final.tau_m:.3g} mm (the stage's "
+    lines.append(f"  checks: {_checks(final)}; the stops scatter {1e3 * final.tau_m:.3g} mm (taken as the stage's "
                  f"repeatability), the regions {1e3 * final.kappa_m:.3g} mm (the wall's relief), beyond their pixels")
+    if "by range" in final.checks and final.checks["by range"][2] < 1e-3:
+        lines.append(f"  by range: the stops scatter {1e3 * final.tau_m:.3g} mm about the model, more than the stage's "
+                     f"tolerance ({1e3 * groups_tolerance(dg):.3g} mm): a bias that changes with time (a warm-up"
+                     f"{'' if dg.has_clock else '; this recording has no clock, so time cannot be told'}) or a stage "
+                     "that is not where it says; record the stops in another order and compare")
+    elif not dg.has_clock:
+        lines.append("  time: this recording has no clock (a folder import): a bias that changes with time (a warm-up) "
+                     "cannot be found")
     for e in final.effects:
         lines.append(f"  {e.name}: {e.physics} ({e.signature})")
     return lines
+
+
+def groups_tolerance(dg: BiasDiagnosis) -> float:
+    return dg.stage_tolerance_m if dg.stage_tolerance_m is not None else float("nan")
 
 
 def bias_path_json(dg: BiasDiagnosis) -> dict[str, Any]:
@@ -47,6 +59,7 @@ def bias_path_json(dg: BiasDiagnosis) -> dict[str, Any]:
                 "checks": {k: {"chi2": c, "dof": n, "p_value": p} for k, (c, n, p) in f.checks.items()}}
 
     return {"steps": [fit_json(s) for s in dg.steps], "added": dg.added, "stopped": dg.stopped,
+            "stage_tolerance_m": dg.stage_tolerance_m, "has_clock": dg.has_clock,
             "candidates": [[{"effect": n, "dbic": b} for n, b in step] for step in dg.candidates],
             "effects": {n: {"physics": e.physics, "signature": e.signature,
                             "parameters": [{"name": q.name, "unit": q.unit, "meaning": q.meaning} for q in e.params]}

@@ -295,7 +295,7 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     from protocols.recording import Recording
 
     from ..accuracy import accuracy_json, accuracy_lines, accuracy_of
-    from ..accuracy.bias_loop import bias_groups, diagnose_bias
+    from ..accuracy.bias_loop import bias_groups, diagnose_bias, stage_tolerance
     from ..accuracy.path_text import bias_path_json, bias_path_lines
     from ..accuracy.bias_effects import BIAS_EFFECTS, BiasEffectFileError, load_bias_effects
 
@@ -308,9 +308,9 @@ def cmd_accuracy(args: argparse.Namespace) -> int:
     with progress_line(args, "rig accuracy"):
         d, notes = model_data(args.recording)
         with Recording(args.recording) as rec:
-            protocol, params = rec.protocol, rec.protocol_params
+            protocol, params, tolerance = rec.protocol, rec.protocol_params, stage_tolerance(rec)
         acc = accuracy_of(d, None, protocol, params)
-        groups = bias_groups(d) if not (acc.why_not or acc.walls) else None
+        groups = bias_groups(d, tolerance) if not (acc.why_not or acc.walls) else None
         dg = diagnose_bias(groups, {**BIAS_EFFECTS, **users}) if groups is not None else None
     if args.json:
         import json

@@ -38,7 +38,9 @@ import numpy as np
 
 from ..models.fitting.progress import ProgressFn, WorkProgress
 
-from ..accuracy.bias_loop import bias_groups, diagnose_bias
+from protocols.recording import Recording
+
+from ..accuracy.bias_loop import bias_groups, diagnose_bias, stage_tolerance
 from ..diagnosis import diagnose
 from ..models import ModelData
 from .scenarios import ALL_SCENARIOS, expected, hidden_scenario, record_outside, record_scenario
@@ -118,7 +120,8 @@ def run_trial(effect: str, seed: int, workdir: Path, **scenario: Any) -> Trial:
 def _bias_trial(effect: str, seed: int, path: Path, t0: float) -> Trial:
     """A miscalibration's trial: the bias loop (`rig.accuracy.bias_loop`) on the recording's stops against the
     stage's truth; its "errors" are the regions' RMS misfit in mm (the noise: the RMS of their own errors)."""
-    g = bias_groups(ModelData.from_recording(path))
+    with Recording(path) as rec:
+        g = bias_groups(ModelData.from_recording(path), stage_tolerance(rec))
     dg = diagnose_bias(g)
     start, final = dg.steps[0], dg.final
     named = dg.added[0] if dg.added else "none"

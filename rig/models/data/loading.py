@@ -9,7 +9,6 @@ images and no second copy of the rows are held while the next stop is read.
 
 from __future__ import annotations
 
-import json
 
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -22,7 +21,7 @@ from protocols.recording_errors import RecordingError
 from .covariates import StopSource, fill_clipped_ambient
 from .pattern_light import fill_clipped_light
 from .independence import independence, pooled_lag1
-from .stop_checks import count_problem, range_problem, stop_truth, zero_variance_problems
+from .stop_checks import count_problem, range_problem, stage_info, stop_truth, zero_variance_problems
 
 #: per-stop facts of frame independence (rig.models.data.independence): the pooled lag-1 sums, frames repeating their
 #: predecessor, pixels kept (two samples or more) and those of them that never changed; NaN: not recorded
@@ -150,11 +149,7 @@ class _Rows:
 def _stage_measures(recording: Recording) -> bool:
     """Whether the recording's stage measured its positions: not `none:` (drivers.stage.NoStage), whose "measured"
     position is the one the plan asked the operator to set."""
-    try:
-        stage = json.loads(str(recording.attrs.get("stage", "{}")))
-    except ValueError:
-        return True
-    return not (isinstance(stage, dict) and stage.get("name") == "none")
+    return stage_info(recording).get("name") != "none"
 
 
 def _add_stop_facts(table: dict[str, list], stop: StopData, stage_measures: bool = True) -> None:

@@ -10,6 +10,8 @@ the fit and the recording's notes say so.
 
 from __future__ import annotations
 
+import json
+
 import math
 import re
 
@@ -28,6 +30,16 @@ _LABEL_M = re.compile(r"^([0-9]+(?:\.[0-9]+)?)m$")
 
 #: where a stop's distance came from (`stop_truth`), in the words the report uses
 TRUTH_SOURCES = ("stage measured", "stage commanded", "plan")
+
+
+def stage_info(recording) -> dict:
+    """The stage an open `Recording` was made with, as its driver described it (`drivers.stage.Stage.describe`: name,
+    limits_m, tolerance_m ...); {} where the file does not say or says it in a form not read."""
+    try:
+        stage = json.loads(str(recording.attrs.get("stage", "{}")))
+    except ValueError:
+        return {}
+    return stage if isinstance(stage, dict) else {}
 
 
 def stop_truth(stop, stage_measures: bool = True) -> tuple[float, str]:
