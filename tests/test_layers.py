@@ -50,6 +50,7 @@ LAZY = {
     "scipy.optimize": "410 ms, and only iterative fits need it (the power law's closed form does not)",
     "scipy.ndimage": "56 ms, for two simulated effects only",
     "matplotlib": "886 ms with pyplot, for plots only", "matplotlib.pyplot": "idem", "matplotlib.backend_bases": "idem",
+    "matplotlib.text": "idem (rig.reports.output_file also writes pages without plots)",
     "distributed": "the optional cluster extra", "depthai": "an optional SDK", "pyrealsense2": "an optional SDK",
     "rosbags.highlevel": "161 ms, bags only", "rosbags.typesys": "idem", "rosbags.interfaces": "idem",
     "rosbags.rosbag1": "59 ms, ROS 1 bags only", "PIL": "30 ms, PNG folders only", "serial.tools": "listing ports only",

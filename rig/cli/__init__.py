@@ -9,6 +9,8 @@ module registered here) with its arguments and a `cmd_*` function.
 from __future__ import annotations
 
 import argparse
+import codecs
+import errno
 import os
 import signal
 import sys
@@ -92,6 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     from protocols.disk_space import is_disk_full, is_storage_failure
 
     argv = sys.argv[1:] if argv is None else list(argv)
+    codecs.register_error("rig-shown", _shown_bytes)
+    for stream in (sys.stdout, sys.stderr):  # a file name's undecodable byte printed as \xNN, not a traceback
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="rig-shown")
     previous = _terminate_like_interrupt()
     try:
         return run_command(argv)
@@ -112,6 +118,14 @@ def main(argv: list[str] | None = None) -> int:
         if is_disk_full(e):
             print(f"rig: error: disk full{where}; free some space and run the command again", file=sys.stderr)
             return 2
+        if e.errno == errno.EROFS:
+            print(f"rig: error: the file system is read-only{where}; write to a folder on another disk (if it went "
+                  "read-only by itself, check the disk: dmesg)", file=sys.stderr)
+            return 2
+        if isinstance(e, PermissionError):
+            print(f"rig: error: permission denied{where}; write to a folder you may write to, or change its "
+                  "permissions", file=sys.stderr)
+            return 2
         if is_storage_failure(e):
             print(f"rig: error: the disk failed{where} ({e.strerror}); check the disk (dmesg) and run the command "
                   "again", file=sys.stderr)
@@ -120,6 +134,15 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for signum, handler in (previous or {}).items():
             signal.signal(signum, handler)
+
+
+def _shown_bytes(e: UnicodeError) -> tuple[str, int]:
+    """The `rig-shown` codec error handler: a file name's undecodable byte (a lone surrogate, PEP 383) as \\xNN, as
+    rig.reports.output_file.shown writes it; any other character the stream cannot take as \\uNNNN."""
+    if not isinstance(e, UnicodeEncodeError):
+        raise e
+    bad = e.object[e.start:e.end]
+    return "".join(f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF else f"\\u{ord(c):04x}" for c in bad), e.end
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:

@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 from ..recordings.comparison import Scatter  # noqa: E402
 from ..recordings.recording_fits import RecordingResult  # noqa: E402
 from .sigma_plot import finish_sigma_figure, sigma_figure  # noqa: E402
+from .output_file import save_figure  # noqa: E402
 
 COLOURS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
@@ -52,6 +53,6 @@ def plot_runs(results: list[RecordingResult], scatters: list[Scatter], path: str
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path

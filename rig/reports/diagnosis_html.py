@@ -8,6 +8,7 @@ from pathlib import Path
 from ..diagnosis import Diagnosis, render_text
 from .html_page import figures, page, run_table
 from .run_info import RunInfo
+from .output_file import write_text
 
 
 def write_html(diag: Diagnosis, plots: list[Path], out_dir: str | Path, run: RunInfo | None = None) -> Path:
@@ -28,7 +29,7 @@ def write_html(diag: Diagnosis, plots: list[Path], out_dir: str | Path, run: Run
 {figures(plots)}
 <h2>Full report</h2>
 <pre>{html.escape(render_text(diag))}</pre>"""
-    out.write_text(page(f"Range-error diagnosis: {diag.source}", body))
+    write_text(out, page(f"Range-error diagnosis: {diag.source}", body))
     return out
 
 

@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 
 from ..diagnosis import BinComparison, Diagnosis  # noqa: E402
 from .shape_plot import plot_shape  # noqa: E402
+from .output_file import save_figure  # noqa: E402
 
 
 def _margin_in(labels: list[str], points: float, pad_in: float) -> float:
@@ -74,7 +75,7 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     ax.set_yticks([])
     fig.suptitle(f"Where {diag.model_fit.model.name} fails: red points are off by more than 3 standard errors")
     p = out / "diagnosis-residuals.png"
-    fig.savefig(p, dpi=100)
+    save_figure(fig, p, dpi=100)
     plt.close(fig)
     paths.append(p)
 
@@ -91,7 +92,7 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     ax.set_xlabel("evidence: BIC drop when the effect is added (log scale; dotted: significance)")
     ax.set_title("Candidate effects")
     p = out / "diagnosis-candidates.png"
-    fig.savefig(p, dpi=100)
+    save_figure(fig, p, dpi=100)
     plt.close(fig)
     paths.append(p)
 
@@ -154,5 +155,5 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
     ax2.set_title(f"headline error {diag.model_headline.error_pct:.2f} % → {diag.final_headline.error_pct:.2f} %")
     ax2.legend(fontsize=7)
     ax2.grid(alpha=0.3)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)

@@ -16,16 +16,14 @@ from .comparison_plots import plot_overlay
 from .comparison_text import difference_rows, results_rows, scatter_rows, setup_rows
 from .html_page import figures, page, run_table, table
 from .run_info import RunInfo, run_info
+from .output_file import write_text
 
 
 def _write(out_dir: str | Path, name: str, text: str) -> Path:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / name
-    tmp = path.with_name(f".{name}.writing")
-    tmp.write_text(text)
-    tmp.replace(path)  # a reader never sees half a page
-    return path
+    return write_text(path, text)  # a reader never sees half a page
 
 
 def write_fit_page(title: str, summary: str, report: str, plots: list[Path], out_dir: str | Path,

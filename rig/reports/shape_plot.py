@@ -16,6 +16,7 @@ from ..models import ModelData, ModelFit  # noqa: E402
 from ..models.data.model_data import range_bin_index  # noqa: E402
 from ..models.effects.empirical import (COVARIATES, EmpiricalFill, EmpiricalFrameMean, EmpiricalPosition,  # noqa: E402
                                 EmpiricalSigma, EmpiricalTails)
+from .output_file import save_figure  # noqa: E402
 
 QUANTILE_BINS = 12
 
@@ -82,7 +83,7 @@ def plot_shape(step: EmpiricalStep, before: ModelFit, before_error_pct: float, d
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     path = Path(path)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..noise_model import NoiseModel
+from .output_file import save_figure
 
 #: inputs a map over a perpendicular wall can supply itself
 MAP_INPUTS = ("cos_incidence",)
@@ -91,6 +92,6 @@ def write_sigma_maps(model: NoiseModel, ranges_m: list[float], out_stem: Path) -
         fig.colorbar(shown, ax=ax, label="sigma (mm)", shrink=0.85)
     fig.suptitle(f"{model.doc['model']}: sigma of a depth sample, a wall perpendicular to the axis", fontsize=10)
     fig.tight_layout()
-    fig.savefig(png, dpi=100)
+    save_figure(fig, png, dpi=100)
     plt.close(fig)
     return npy, tif, png

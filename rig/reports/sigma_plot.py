@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 
 from ..diagnosis.bins import BinnedSigma  # noqa: E402
 from ..models import ModelFit  # noqa: E402
+from .output_file import save_figure  # noqa: E402
 
 
 @dataclass
@@ -89,6 +90,6 @@ def finish_sigma_figure(fig, axes, path: str | Path, title: str, legend_size: in
             ax.set_title(title)
             ax.legend(fontsize=legend_size, loc="upper left")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
