@@ -8,7 +8,7 @@ returns the position it measured afterwards.
 from __future__ import annotations
 
 import abc
-from typing import Any
+from typing import Any, Callable
 
 from .errors import StageError
 from .options import OptionTable
@@ -95,6 +95,9 @@ class NoStage(Stage):
 
     def __init__(self, position_m: float = float("nan")):
         self._position_m = position_m
+        #: who places the camera: called with a one-line request before each move, returning once it is done (None:
+        #: nobody is asked; a plan of one stop is set up beforehand)
+        self.ask: Callable[[str], None] | None = None
 
     @property
     def limits_m(self) -> tuple[float, float]:
@@ -104,6 +107,8 @@ class NoStage(Stage):
         pass
 
     def move_to(self, position_m: float) -> float:
+        if self.ask is not None:
+            self.ask(f"place the camera {position_m:.3f} m from the wall")
         self._position_m = position_m
         return position_m
 

@@ -308,3 +308,94 @@ def test_an_empty_import_folder_and_empty_models_are_named_as_such(small_recordi
         assert main(["compare", str(small_recording), "--models", given]) == 2
         assert f"--models {given!r} names no model; give them comma-separated" in capsys.readouterr().err
     assert not (tmp_path / "e.h5").exists()
+
+
+def test_a_file_name_with_an_undecodable_byte_is_shown_as_ls_shows_it(small_recording, tmp_path, capsys):
+    """Linux file names are bytes: b'caf\\xe9.h5' (Latin-1) reaches rig as a lone surrogate, which neither UTF-8 nor
+    matplotlib takes. diagnose, fit --report and compare --report write it as \\xe9 in their text, pages and plots."""
+    import os
+    import shutil
+
+    name = os.fsdecode(b"caf\xe9.h5")
+    copy = tmp_path / name
+    other = tmp_path / os.fsdecode(b"b\xe9.h5")
+    shutil.copy(small_recording, copy)
+    shutil.copy(small_recording, other)
+    capsys.readouterr()
+    assert main(["diagnose", str(copy), "--out", str(tmp_path / "d")]) == 0
+    assert "caf\\xe9" in capsys.readouterr().out
+    assert "caf\\xe9.h5" in (tmp_path / "d" / "diagnosis.html").read_text(encoding="utf-8")
+    assert main(["fit", str(copy), "--report", str(tmp_path / "f")]) == 0
+    assert "caf\\xe9.h5" in (tmp_path / "f" / "fit.html").read_text(encoding="utf-8")
+    assert main(["compare", str(copy), str(other), "--report", str(tmp_path / "c"),
+                 "--plot", str(tmp_path / "c.png")]) == 0
+    assert (tmp_path / "c.png").stat().st_size > 1000 and not list(tmp_path.glob(".*.writing"))
+
+
+def test_a_user_effect_that_fails_mid_fit_names_itself_its_file_and_the_values(small_recording, tmp_path, capsys):
+    effect = tmp_path / "touchy.py"
+    effect.write_text(textwrap.dedent('''
+        from rig.models import Param, TermEffect, register
+
+        @register
+        class Touchy(TermEffect):
+            """A fall-off the function cannot compute below n = 0.8 (the data show none: the fit goes there)."""
+
+            name = "touchy"
+            stage = "illumination"
+            params = (Param("n", 1.0, 0.0, 12.0, "1", "an exponent"),)
+            signature = "none"
+
+            def term(self, c, n):
+                if n < 0.8:
+                    raise ValueError("n too small")
+                return c.cos_off_axis ** -n
+        '''))
+    assert main(["fit", str(small_recording), "--effects", str(effect), "--model", "active+touchy"]) == 2
+    one_line(capsys, "effect touchy (in ", "touchy.py", "term(n=", "ValueError: n too small", "n in [0, 12]",
+             "narrow the range")
+
+
+def test_a_stageless_run_of_several_stops_asks_at_a_terminal_and_is_refused_elsewhere(monkeypatch, capsys):
+    """`--stage none:` means a person moves the camera: rig asks before each stop, and without a terminal to ask at
+    refuses the plan in one line. (A simulated camera's wall follows the plan, so rig run with fake: never asks.)"""
+    import io
+
+    from drivers.stage import NoStage
+    from protocols.perpendicular import perpendicular
+    from rig.cli.acquire import _ask_to_move
+    from rig.cli.usage import UsageError
+
+    plan = perpendicular([0.5, 1.0, 1.5])
+    with pytest.raises(UsageError, match=r"--stage none: with 3 stops needs someone to move the camera"):
+        _ask_to_move(NoStage(), plan, "none:")
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr("sys.stdin", Terminal("\n\n"))
+    stage = NoStage()
+    _ask_to_move(stage, plan, "none:")
+    assert stage.move_to(0.5) == 0.5 and stage.move_to(1.0) == 1.0
+    err = capsys.readouterr().err
+    assert "place the camera 0.500 m from the wall, then press Enter" in err and "1.000 m" in err
+    with pytest.raises(KeyboardInterrupt):  # the terminal closed: stopped as Ctrl-C stops, completed stops kept
+        stage.move_to(1.5)
+    one_stop = NoStage()
+    _ask_to_move(one_stop, perpendicular([0.5]), "none:")
+    assert one_stop.ask is None  # a plan of one stop is set up beforehand: nobody is asked
+
+
+def test_calibration_week_states_the_interval_the_verdict_prints():
+    """docs/calibration-week.md gives the ratio's interval for five runs: chi^2 with 4 degrees of freedom at the
+    verdicts' level (rig.recordings.comparison.ALPHA), computed here from scipy."""
+    import math
+
+    from scipy.stats import chi2
+
+    from rig.recordings.comparison import ALPHA
+
+    low, high = (math.sqrt(4 / chi2.ppf(q, 4)) for q in (1 - ALPHA / 2, ALPHA / 2))
+    text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "calibration-week.md").read_text().split())
+    assert f"{100 * (1 - ALPHA):.0f} % interval" in text and f"{low:.2f} to {high:.2f} times" in text

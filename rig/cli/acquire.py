@@ -158,6 +158,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("no output file; pass -o FILE.h5 (or set output in the experiment file)")
     refuse_suffix(output, "-o", (".h5", ".hdf5"), "a recording (HDF5)")
     devices = open_devices(camera, stage, **spec.wall_of(exp.plan.params))
+    if devices.camera.true_distance_m() is None:  # a simulated camera's wall follows the plan: nobody moves it
+        _ask_to_move(getattr(devices.stage, "inner", devices.stage), exp.plan, stage)
     quiet = verbosity(args) == QUIET
     if not quiet:
         print(f"rig: {exp.plan.name} experiment, camera {camera}, stage {stage} -> {output}", file=sys.stderr)
@@ -165,6 +167,30 @@ def cmd_run(args: argparse.Namespace) -> int:
         exp.plan, output, resume=args.resume)
     print(f"recorded {len(result.recorded)} stops ({len(result.skipped)} already there) in {result.path}")
     return 0
+
+
+def _ask_to_move(stage, plan, spec: str) -> None:
+    """Without a stage (`none:`) someone moves the camera: at a terminal rig asks before each stop of a plan of
+    several; elsewhere such a plan is refused, since nobody would be asked."""
+    from drivers.stage import NoStage
+    from protocols.plan import Move
+
+    moves = sum(isinstance(s, Move) for s in plan.steps())
+    if not isinstance(stage, NoStage) or moves <= 1:
+        return
+    if not sys.stdin.isatty():
+        raise UsageError(f"--stage {spec} with {moves} stops needs someone to move the camera between them, and "
+                         "rig is not at a terminal to ask; run it at a terminal, give a stage (e.g. --stage fake: or "
+                         "grbl:///dev/ttyUSB0), or record one stop a run (--stops D)")
+
+    def ask(text: str) -> None:
+        print(f"rig: {text}, then press Enter (Ctrl-C stops; completed stops are kept)", file=sys.stderr)
+        try:
+            input()
+        except EOFError:
+            raise KeyboardInterrupt from None
+
+    stage.ask = ask
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -215,6 +241,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     from ..reports.progress import TerminalProgress
 
     refuse_suffix(args.output, "-o", (".h5", ".hdf5"), "a recording (HDF5)")
+    refuse_unwritable(args.output, "-o")
     source = Path(args.folder)
     if source.is_dir() and not any(p for p in source.iterdir() if not p.name.startswith(".") and p.is_dir()
                                    or p.suffix.lower() in (".bag", ".db3", ".mcap")):

@@ -171,8 +171,19 @@ class TermEffect(Effect):
         raise NotImplementedError
 
     def evaluate(self, d: ModelData, p: Any) -> np.ndarray:
-        """The function's per-pixel output for parameter values `p` (its own, `own`, or a model's by qualified name)."""
-        out = np.asarray(self.term(covariates(d), **self.own(p)._asdict()), dtype=float)
+        """The function's per-pixel output for parameter values `p` (its own, `own`, or a model's by qualified name);
+        an exception from the function is an EffectFileError naming the effect, its file and the values."""
+        values = self.own(p)._asdict()
+        try:
+            out = np.asarray(self.term(covariates(d), **values), dtype=float)
+        except EffectFileError:
+            raise
+        except Exception as e:
+            at = ", ".join(f"{k}={v:.4g}" for k, v in values.items())
+            ranges = ", ".join(f"{q.name} in [{q.min:g}, {q.max:g}]" for q in self.params)
+            raise EffectFileError(f"effect {self.name}{_where(self)}: term({at}) failed ({type(e).__name__}: {e}); the "
+                                  f"fit may try any value in its range ({ranges}): make the function work over it, or "
+                                  "narrow the range") from None
         return np.broadcast_to(out, d.z_m.shape)
 
     def start(self, d: ModelData, pred: Prediction) -> dict[str, float]:
