@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..noise_model import NoiseModel
+from .output_file import aside
 
 #: rows in a vectors file: 1+2n evaluations of the model each (the differences of the standard error), well under a
 #: second for every model rig fits
@@ -56,7 +57,7 @@ def write_vectors(model: NoiseModel, path: Path) -> Path:
     sigma, se = model.sigma(inputs["z_m"], inputs["u_px"], inputs["v_px"], with_error=True,
                             **{n: inputs[n] for n in model.inputs})
     columns = {**inputs, "sigma_m": sigma, "sigma_se_m": se}
-    with open(path, "w", newline="") as f:
+    with aside(path) as tmp, open(tmp, "w", newline="") as f:  # whole or not at all (rig.reports.output_file)
         out = csv.writer(f)
         out.writerow(columns)
         out.writerows(zip(*(map(repr, map(float, c)) for c in columns.values())))

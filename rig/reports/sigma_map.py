@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..noise_model import NoiseModel
-from .output_file import save_figure
+from .output_file import aside, save_figure
 
 #: inputs a map over a perpendicular wall can supply itself
 MAP_INPUTS = ("cos_incidence",)
@@ -80,9 +80,12 @@ def write_sigma_maps(model: NoiseModel, ranges_m: list[float], out_stem: Path) -
 
     maps = sigma_maps(model, ranges_m)
     npy, tif, png = (out_stem.with_name(out_stem.name + suffix) for suffix in (".npy", ".tif", ".png"))
-    np.save(npy, maps)
+    with aside(npy) as tmp, open(tmp, "wb") as f:  # whole or not at all (rig.reports.output_file)
+        np.save(f, maps)
     # float32: sigma rounded to 2^-24 relatively (6e-8, 0.6 nm in 10 mm), what image tools and ROS's 32FC1 take
-    tifffile.imwrite(tif, maps.astype(np.float32), photometric="minisblack", metadata=tiff_metadata(model, ranges_m))
+    with aside(tif) as tmp:
+        tifffile.imwrite(tmp, maps.astype(np.float32), photometric="minisblack",
+                         metadata=tiff_metadata(model, ranges_m))
     fig, axes = plt.subplots(1, len(ranges_m), figsize=(4.2 * len(ranges_m), 3.2), squeeze=False)
     for ax, z, image in zip(axes[0], ranges_m, maps):
         shown = ax.imshow(image * 1e3, cmap="viridis", origin="upper")

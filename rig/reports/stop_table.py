@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..accuracy import Accuracy
+from .output_file import aside
 from ..models import ModelData, ModelFit
 from ..models.data.group_sums import group_sums
 
@@ -95,7 +96,7 @@ def _with_accuracy(row: StopRow, a: Accuracy) -> StopRow:
 def write_stop_table(rows: list[StopRow], path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
+    with aside(path) as tmp, open(tmp, "w", newline="") as f:  # whole or not at all (rig.reports.output_file)
         out = csv.writer(f)
         out.writerow(COLUMNS)
         out.writerows(astuple(r) for r in rows)
