@@ -1,7 +1,7 @@
 """The `rig` command line: one parser builds every command.
 
 The commands live by what they do: `acquire` (demo, run, simulate, import), `analyse` (fit,
-compare, diagnose), `export` (export, sigma-bag), `recordings` (repeatability; compare of several recordings) and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
+compare, diagnose), `export` (export, sigma-bag), `recordings` (repeatability; compare of several recordings), `check` (a spec's pass or fail) and `tools` (devices, tui, paper-windows, validate-diagnosis, stage-sim).
 Each module's `register` adds its sub-commands; a new command goes into one of them (or a new
 module registered here) with its arguments and a `cmd_*` function.
 """
@@ -25,7 +25,7 @@ one_blas_thread()  # before anything imports numpy (rig/runtime/blas_threads.py 
 from drivers.errors import DeviceError, FolderImportError
 from protocols import interruption
 
-from . import acquire, analyse, export, recordings, tools
+from . import acquire, analyse, check, export, recordings, tools
 from .options import add_verbosity
 from .usage import UsageError
 
@@ -46,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     analyse.register(sub)
     export.register(sub)
     recordings.register(sub)
+    check.register(sub)
     tools.register(sub)
     for command in sub.choices.values():
         add_verbosity(command, top=False)

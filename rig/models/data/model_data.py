@@ -351,11 +351,18 @@ class ModelData(ShapeStatistics):
         stops = np.flatnonzero(present)
         fill = self.fill
         frames = self.n / np.maximum(fill, 1e-12)
-        count = np.bincount(idx, minlength=len(stops)).astype(float)
-        measured = np.bincount(idx, weights=fill, minlength=len(stops)) / count
-        binomial = np.sqrt(np.bincount(idx, weights=fill * (1 - fill) / frames, minlength=len(stops))) / count
-        one_sample = 1.0 / np.bincount(idx, weights=frames, minlength=len(stops))
-        return idx, measured, np.maximum(binomial, one_sample)
+        return (idx, *mean_fill(fill, frames, idx, len(stops)))
+
+
+def mean_fill(fill: np.ndarray, frames: np.ndarray, idx: np.ndarray, groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """(mean fill of each group 0..groups-1 of pixels, its standard error): `fill` each pixel's share of its `frames`
+    frames with a valid depth, `idx` its group. The error is binomial, each pixel's frames independent trials:
+    sqrt(sum f (1 - f) / frames) / pixels, and at least one sample in the group's frames, 1 / sum frames."""
+    count = np.bincount(idx, minlength=groups).astype(float)
+    measured = np.bincount(idx, weights=fill, minlength=groups) / count
+    binomial = np.sqrt(np.bincount(idx, weights=fill * (1 - fill) / frames, minlength=groups)) / count
+    one_sample = 1.0 / np.bincount(idx, weights=frames, minlength=groups)
+    return measured, np.maximum(binomial, one_sample)
 
 
 def _lazy(name: str) -> property:
