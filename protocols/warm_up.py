@@ -1,9 +1,9 @@
 """Warm-up: how fast the camera's depth still drifts, judged from the frame mean depth over a sliding window.
 
 A stereo head's depth drifts while it warms up (the projector and the sensor heat it, the baseline and the
-rectification move). Each frame's mean valid depth, in mm, at its
-device time goes to a `DriftWindow`; the camera is warm when the drift of the last `window_s` seconds is shown to be
-below the threshold.
+rectification move). Before the first stop the runner streams frames with the run's settings into
+`wait_until_warm`, which feeds each frame's mean valid depth, in mm, at its device time to a `DriftWindow`; the
+camera is warm when the drift of the last `window_s` seconds is shown to be below the threshold.
 
 The rule (`DriftEstimate.warm`): fit mean_mm = a + b t over the window by least squares (scipy.stats.linregress);
 inflate the slope's standard error for the residuals' lag-1 autocorrelation r1 (AR(1) residuals: effective
@@ -17,13 +17,27 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import Callable, Iterable
 
 import numpy as np
+
+from .plan import WarmUp
 
 #: the interval the rule demands inside +-threshold: two-sided 95 %
 CONFIDENCE = 0.95
 #: fewer effective samples than this: the slope is not judged (the camera is not called warm)
 MIN_EFFECTIVE_SAMPLES = 5
+#: the drift is judged (and shown) once per this many seconds of the camera's clock
+CHECK_S = 1.0
+
+#: what the wait tells a progress display: (kind, text, summary); kind "warm_up" while waiting, "message" when warm
+Report = Callable[[str, str, dict], None]
+
+
+class StillDrifting(Exception):
+    """The camera is not warm after the step's max_s; the message says how far it is and what to do."""
+
+
 @dataclass(frozen=True)
 class DriftEstimate:
     """The frame mean depth's drift over one window.
@@ -103,3 +117,42 @@ class DriftWindow:
     def estimate(self) -> DriftEstimate:
         return drift_estimate(np.fromiter(self.t_s, float), np.fromiter(self.mean_mm, float))
 
+
+def wait_until_warm(frames: Iterable[tuple[float, np.ndarray]], step: WarmUp, depth_scale_m: float, camera: str,
+                    report: Report) -> tuple[float, DriftEstimate]:
+    """Read (device time in s, depth image in units) until the camera is warm by the module's rule, judged each
+    CHECK_S once a whole window has passed; return the wait in s (device clock, from the first frame) and the
+    drift it ended with. StillDrifting after `step.max_s`: a run never records a drifting camera unasked.
+
+    A 'warm_up' report each CHECK_S while waiting: text, and summary waited_s, drift_mm_per_min, se_mm_per_min (NaN
+    before a whole window), threshold_mm_per_min; a 'message' when warm."""
+    window, threshold = DriftWindow(step.window_s), step.drift_mm_per_min
+    start_s = next_s = math.nan
+    estimate = DriftEstimate(math.nan, math.nan, 0, 0.0, 0.0)
+    for t_s, depth in frames:
+        if math.isnan(start_s):
+            start_s, next_s = t_s, t_s + CHECK_S
+        valid = depth[depth > 0]
+        window.add(t_s, float(valid.mean()) * depth_scale_m * 1000.0 if valid.size else math.nan)
+        if t_s < next_s:
+            continue
+        next_s += CHECK_S
+        waited = t_s - start_s
+        if window.full:
+            estimate = window.estimate()
+            if estimate.warm(threshold):
+                report("message", f"warm after {waited:.0f} s: the depth drifts {estimate.text()} (below "
+                                  f"{threshold:g} mm/min)", {})
+                return waited, estimate
+        drift = f"drift {estimate.text()}" if window.full else f"first window of {step.window_s:g} s"
+        if waited >= step.max_s:
+            raise StillDrifting(
+                f"after {waited:.0f} s of warm-up {camera}'s depth is not shown to drift under {threshold:g} mm/min "
+                f"({drift if window.full else 'no window with valid depth'}; the 95 % interval must lie inside the "
+                "threshold); let it warm longer (--warm-up-max-s), allow more drift (--warm-up-drift-mm-per-min), "
+                "or shield it from draughts and sun")
+        report("warm_up", f"warming up: {waited:.0f} s of at most {step.max_s:g} s, {drift}, waiting for under "
+                          f"{threshold:g} mm/min",
+               {"waited_s": waited, "drift_mm_per_min": estimate.drift_mm_per_min,
+                "se_mm_per_min": estimate.se_mm_per_min, "threshold_mm_per_min": threshold})
+    raise StillDrifting(f"{camera} stopped sending frames during the warm-up; check its cable and run again")
