@@ -13,7 +13,7 @@ from typing import Any
 
 from drivers.camera import CameraSettings
 
-from .plan import Capture
+from .plan import Capture, WarmUp
 from .plan_values import ProtocolParam, between, whole_between
 
 #: the widest ranges any supported camera takes (RealSense D4xx: exposure 1-165000 us, gain 16-248;
@@ -35,7 +35,17 @@ CAPTURE_PARAMS = (
     ProtocolParam("ambient_frames", int, 0, "", "Ambient frames", "extra frames per stop with the projector "
                   "off (the ambient light level)", whole_between(0, 10_000), form=False),
     ProtocolParam("keep_raw", bool, False, label="Keep raw frames", help="store the raw frames too", form=False),
+    ProtocolParam("warm_up_drift_mm_per_min", float, 0.0, "mm/min", "Warm-up drift [mm/min]",
+                  "before the first stop, wait until the frame mean depth drifts less than this (0: do not wait)",
+                  between(0.0, 100.0, "mm/min (0: do not wait)"), form=False),
+    ProtocolParam("warm_up_window_s", float, 60.0, "s", "Warm-up window [s]",
+                  "the seconds of frames the drift is fitted over", between(1.0, 3600.0, "s"),
+                  form=False),
+    ProtocolParam("warm_up_max_s", float, 1800.0, "s", "Warm-up at most [s]",
+                  "a camera still drifting after this long stops the run", between(1.0, 86_400.0, "s"), form=False),
 )
+#: the warm-up's parameters: they change no stop's recording, so a resumed run may change them (plan_check)
+WARM_UP_PARAMS = ("warm_up_drift_mm_per_min", "warm_up_window_s", "warm_up_max_s")
 _DEFAULT = {p.name: p.default for p in CAPTURE_PARAMS}
 
 
@@ -47,7 +57,9 @@ class CaptureSettings:
     gain: the sensor's analog gain in the device's units (RealSense: 16..248, x1 = 16);
     settle_s: seconds to wait after each move before capturing; ir: also average the left IR
     image; ambient_frames: extra frames per stop with the projector off (the ambient light
-    level); keep_raw: store the raw frames too.
+    level); keep_raw: store the raw frames too; warm_up_drift_mm_per_min: before the first stop, wait until the
+    frame mean depth drifts less than this (0: do not wait), judged over the last warm_up_window_s seconds, for
+    at most warm_up_max_s seconds (`plan.WarmUp`).
     """
 
     projector_on: bool = _DEFAULT["projector_on"]
@@ -57,10 +69,17 @@ class CaptureSettings:
     ir: bool = _DEFAULT["ir"]
     ambient_frames: int = _DEFAULT["ambient_frames"]
     keep_raw: bool = _DEFAULT["keep_raw"]
+    warm_up_drift_mm_per_min: float = _DEFAULT["warm_up_drift_mm_per_min"]
+    warm_up_window_s: float = _DEFAULT["warm_up_window_s"]
+    warm_up_max_s: float = _DEFAULT["warm_up_max_s"]
 
     def __post_init__(self) -> None:
         for p in CAPTURE_PARAMS:
             object.__setattr__(self, p.name, p.checked("capture settings", getattr(self, p.name)))
+        if self.warm_up_drift_mm_per_min > 0 and self.warm_up_max_s < self.warm_up_window_s:
+            raise ValueError(f"capture settings: warm_up_max_s = {self.warm_up_max_s:g} is shorter than "
+                             f"warm_up_window_s = {self.warm_up_window_s:g}, so the drift is never judged; give "
+                             f"warm_up_max_s of at least {self.warm_up_window_s:g} s or a shorter window")
 
     def camera(self) -> CameraSettings:
         """The camera settings to configure (auto-exposure always off)."""
@@ -70,6 +89,12 @@ class CaptureSettings:
     def capture(self, stop: str, n_frames: int) -> Capture:
         """The capture step of one stop."""
         return Capture(stop, n_frames, ir=self.ir, ambient_frames=self.ambient_frames, keep_raw=self.keep_raw)
+
+    def warm_up(self) -> list[WarmUp]:
+        """The warm-up step the protocols take after configuring the camera, when asked for one ([] if not)."""
+        if self.warm_up_drift_mm_per_min <= 0:
+            return []
+        return [WarmUp(self.warm_up_drift_mm_per_min, self.warm_up_window_s, self.warm_up_max_s)]
 
     def to_params(self) -> dict[str, Any]:
         """The flat parameters, as recorded in `protocol_params` and written to experiment files."""

@@ -35,9 +35,10 @@ def check_stops(where: str, name: str, value: Any) -> list[float]:
 
 
 def steps(settings: CaptureSettings, *, stops_m: list[float], frames_per_stop: int) -> Iterator[Step]:
-    """Home, configure, then at each stop: move, settle, capture `frames_per_stop` frames."""
+    """Home, configure, warm up (when asked), then at each stop: move, settle, capture `frames_per_stop` frames."""
     yield Home()
     yield Configure(settings.camera())
+    yield from settings.warm_up()
     for z in stops_m:
         yield Move(z)
         yield Settle(settings.settle_s)
@@ -56,6 +57,6 @@ def perpendicular(stops_m: Sequence[float] = DEFAULT_STOPS_M, **params: Any) -> 
     """The plan (`PERPENDICULAR`): at each of `stops_m` capture `frames_per_stop` frames (default 300).
 
     `params`: frames_per_stop and the capture settings by name (`protocols.capture_settings.CaptureSettings`:
-    projector_on, exposure_us, gain, settle_s, ir, ambient_frames, keep_raw).
+    projector_on, exposure_us, gain, settle_s, ir, ambient_frames, keep_raw, warm_up_*).
     """
     return PERPENDICULAR.plan(stops_m=stops_m, **params)

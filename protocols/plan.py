@@ -40,6 +40,16 @@ class Configure:
 
 
 @dataclass(frozen=True)
+class WarmUp:
+    """Stream frames until the frame mean depth drifts less than `drift_mm_per_min` (shown over the last `window_s`
+    seconds by `protocols.warm_up`'s rule); give up after `max_s` seconds, recording nothing."""
+
+    drift_mm_per_min: float
+    window_s: float
+    max_s: float
+
+
+@dataclass(frozen=True)
 class Capture:
     """Capture one stop: `n_frames` frames reduced to per-pixel statistics.
 
@@ -55,7 +65,7 @@ class Capture:
     keep_raw: bool = False
 
 
-Step = Union[Home, Move, Settle, Configure, Capture]
+Step = Union[Home, Move, Settle, Configure, WarmUp, Capture]
 
 
 @dataclass

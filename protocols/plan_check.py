@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from . import stop_journal as journal
+from .capture_settings import WARM_UP_PARAMS
 from .catalogue import PROTOCOLS, current_params
 from .disk_space import FILE_OVERHEAD_BYTES, RESERVE_BYTES, free_bytes, size_text, stop_bytes
 from .plan import Capture, Configure, Move, Plan, Settle
@@ -222,8 +223,8 @@ def resume_problems(protocol: str, old_params: dict[str, Any], plan: Plan, recor
 
     The stops not yet recorded may change: added, moved or dropped (the plan's `stops_param`). Every
     recorded stop must stay in the plan and be recorded the same way (position, frames, settling,
-    camera settings), and every other parameter must be as in the file. With no stop recorded,
-    nothing is kept, so anything may change.
+    camera settings), and every other parameter must be as in the file, but the warm-up's (WARM_UP_PARAMS: they
+    change no stop's recording). With no stop recorded, nothing is kept, so anything may change.
     """
     recorded = set(recorded)
     old_params = current_params(old_params)  # a recording made before a parameter was renamed (frames -> frames_per_stop)
@@ -234,7 +235,8 @@ def resume_problems(protocol: str, old_params: dict[str, Any], plan: Plan, recor
     old, new = _plain(old_params), _plain(plan.params)
     k = plan.stops_param
     problems = [f"plan {name} {old.get(name)!r} in the file, {new.get(name)!r} now"
-                for name in dict.fromkeys([*old, *new]) if name != k and old.get(name) != new.get(name)]
+                for name in dict.fromkeys([*old, *new])
+                if name != k and name not in WARM_UP_PARAMS and old.get(name) != new.get(name)]
     if problems or not k or old.get(k) == new.get(k):
         return problems
     try:

@@ -13,7 +13,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from drivers.image_regions import center_box
 from drivers.stage import Stage
 
 from .run_errors import PlanRefused, RunError  # noqa: F401  (re-exported: protocols.runner.RunError)
-from .plan import Capture, Configure, Home, Move, Plan, Settle
+from .plan import Capture, Configure, Home, Move, Plan, Settle, WarmUp
 from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, is_storage_failure, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
 from . import interruption
@@ -33,6 +33,7 @@ from .recording_errors import AssemblyError
 from .recording_writer import RecordingWriter
 from .stop_journal import journal_dir
 from .stats import MeanImageAccumulator, PixelMomentAccumulator
+from .warm_up import StillDrifting, wait_until_warm
 
 #: frames right after a settings change that may still carry the old settings
 MAX_STALE_FRAMES = 30
@@ -44,7 +45,8 @@ MAX_REFUSED_FRACTION = 0.05
 class ProgressEvent:
     """What the runner tells a progress display.
 
-    kind: 'stop_start', 'frame', 'stop_done', 'stop_skipped', 'message', 'done'.
+    kind: 'stop_start', 'frame', 'stop_done', 'stop_skipped', 'warm_up' (its summary: `warm_up.wait_until_warm`),
+    'message', 'done'.
     """
 
     kind: str
@@ -147,6 +149,7 @@ class Runner:
                     self.progress(ProgressEvent("message", text=f"resuming with a changed plan: {change}"))
                 pending_move: float | None = None
                 pending_settle = 0.0
+                pending_warm_up: WarmUp | None = None
                 requested: CameraSettings | None = None
                 needs_home = homed = False
                 for step in plan.steps():
@@ -159,6 +162,8 @@ class Runner:
                         pending_move = step.position_m
                     elif isinstance(step, Settle):
                         pending_settle += step.seconds
+                    elif isinstance(step, WarmUp):
+                        pending_warm_up = step  # before the next stop to record, the camera standing still
                     elif isinstance(step, Configure):
                         requested = step.settings
                         self._configure(requested)
@@ -170,6 +175,10 @@ class Runner:
                         else:
                             if requested is None:
                                 raise RunError(f"plan {plan.name!r}: capture {step.stop!r} comes before any Configure step; configure the camera first")
+                            warm_up = {}
+                            if pending_warm_up is not None:
+                                warm_up = self._warm_up(pending_warm_up, requested)
+                                pending_warm_up = None
                             commanded = float("nan")
                             if pending_move is not None:
                                 if needs_home and not homed:
@@ -185,7 +194,7 @@ class Runner:
                             measured = self.stage.position_m() if pending_move is not None else float("nan")
                             if pending_move is not None:
                                 self.stage.check_arrived(commanded, measured)
-                            self._capture(writer, step, index, len(labels), requested, commanded, measured)
+                            self._capture(writer, step, index, len(labels), requested, commanded, measured, warm_up)
                             recorded.append(step.stop)
                         pending_move, pending_settle = None, 0.0
                 writer.finish()
@@ -204,7 +213,7 @@ class Runner:
                            f"free about {megabytes(e.need)} and rerun with --resume") from None
         except AssemblyError as e:  # every stop is saved; only the final file is missing
             raise RunError(str(e)) from None
-        except (DeviceError, RecordingError) as e:
+        except (DeviceError, RecordingError, StillDrifting) as e:
             raise RunError(f"{e}; " + self._saved_message(path, recorded, skipped, len(labels), created)) from None
         except OSError as e:
             if is_storage_failure(e):  # an I/O error, a read-only disk: what is saved, and how to go on
@@ -296,7 +305,7 @@ class Runner:
         self.refused = refused
 
     def _capture(self, writer: RecordingWriter, step: Capture, index: int, n_stops: int, requested: CameraSettings,
-                 commanded_m: float, measured_m: float) -> None:
+                 commanded_m: float, measured_m: float, warm_up: dict[str, float] | None = None) -> None:
         info = self.camera.info()
         shape = (info.intrinsics.height, info.intrinsics.width)
         self.progress(ProgressEvent("stop_start", step.stop, index, n_stops, n_frames=step.n_frames,
@@ -309,7 +318,7 @@ class Runner:
                               settings_requested=requested.to_dict(), settings_read_back=self.camera.read_settings().to_dict(),
                               keep_raw=step.keep_raw)
         try:
-            self._stream(writer, g, step, index, n_stops, requested, shape, info, measured_m)
+            self._stream(writer, g, step, index, n_stops, requested, shape, info, measured_m, warm_up or {})
         except BaseException as e:
             writer.abandon_stop()
             if isinstance(e, OSError) and is_disk_full(e):
@@ -317,7 +326,7 @@ class Runner:
             raise
 
     def _stream(self, writer: RecordingWriter, g, step: Capture, index: int, n_stops: int, requested: CameraSettings,
-                shape: tuple[int, int], info, measured_m: float) -> None:
+                shape: tuple[int, int], info, measured_m: float, warm_up: dict[str, float]) -> None:
         raw = writer.raw_frames(g, step.n_frames, shape) if step.keep_raw else None
         acc = PixelMomentAccumulator(shape, info.depth_scale_m)
         ir_acc = MeanImageAccumulator(self.camera.ir_full_scale_dn)
@@ -363,7 +372,7 @@ class Runner:
             ir_saturated=ir_acc.saturated, ir_full_scale_dn=ir_acc.full_scale_dn,
             extra_attrs={"frames_refused": refused, "frames_dropped": continuity.dropped,
                          "frames_duplicated": continuity.duplicated, "measured_position_end_m": measured_end,
-                         **self._as_recorded(requested, series)},
+                         **self._as_recorded(requested, series), **warm_up},
         )
         c = stats.count[cy, cx] > 1
         sigma_c = float(np.sqrt(np.mean(stats.variance_m2[cy, cx][c]))) if c.any() else float("nan")
@@ -373,6 +382,31 @@ class Runner:
                                              "center_mean_m": mean_c,
                                              "position_m": measured_m, "frames_dropped": continuity.dropped,
                                              "frames_duplicated": continuity.duplicated}))
+
+    def _warm_up(self, step: WarmUp, requested: CameraSettings) -> dict[str, float]:
+        """Stream frames with the run's settings until the camera is warm (`warm_up.wait_until_warm`); return the
+        stop attributes saying how long it waited and the drift it ended with. A recording played back is as warm
+        as it was made."""
+        if self.camera.plays_back:
+            self.progress(ProgressEvent("message", text=f"{self.camera.name} plays back a recording: no warm-up"))
+            return {}
+
+        def frames() -> Iterator[tuple[float, np.ndarray]]:
+            continuity = FrameContinuity()
+            while True:
+                for frame in self._frames_checked(30, requested, ir=False, continuity=continuity):
+                    self.control.wait_if_paused()
+                    interruption.check()
+                    if self.control.abort.is_set():
+                        raise _Aborted()
+                    yield frame.timestamp_ms / 1000.0, frame.depth
+
+        def report(kind: str, text: str, summary: dict) -> None:
+            self.progress(ProgressEvent(kind, text=text, summary=summary))
+
+        waited, estimate = wait_until_warm(frames(), step, self.camera.info().depth_scale_m, self.camera.name, report)
+        return {"warm_up_s": waited, "warm_up_drift_mm_per_min": estimate.drift_mm_per_min,
+                "warm_up_drift_se_mm_per_min": estimate.se_mm_per_min}
 
     def _as_recorded(self, requested: CameraSettings, series: dict[str, np.ndarray]) -> dict[str, str]:
         """For a recording played back: how its settings differ from the request, as a stop attribute

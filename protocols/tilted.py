@@ -16,9 +16,10 @@ from .plan_values import ProtocolParam, between, distance_m as check_distance
 from .protocol_spec import ProtocolSpec
 
 def steps(settings: CaptureSettings, *, tilt_deg: float, distance_m: float, frames_per_stop: int) -> Iterator[Step]:
-    """Configure, place the camera at `distance_m` from the wall's centre, capture `frames_per_stop` frames."""
+    """Configure, warm up (when asked), place the camera at `distance_m` from the wall's centre, capture `frames_per_stop` frames."""
     yield Home()
     yield Configure(settings.camera())
+    yield from settings.warm_up()
     yield Move(distance_m)
     yield Settle(settings.settle_s)
     yield settings.capture("tilted", frames_per_stop)

@@ -49,6 +49,7 @@ def test_the_module_import_graph_has_no_cycle():
 LAZY = {
     "scipy.optimize": "410 ms, and only iterative fits need it (the power law's closed form does not)",
     "scipy.ndimage": "56 ms, for two simulated effects only",
+    "scipy.stats": "1.5 s, for the warm-up's fit only (a run that asks for one)",
     "matplotlib": "886 ms with pyplot, for plots only", "matplotlib.pyplot": "idem", "matplotlib.backend_bases": "idem",
     "matplotlib.text": "idem (rig.reports.output_file also writes pages without plots)",
     "distributed": "the optional cluster extra", "depthai": "an optional SDK", "pyrealsense2": "an optional SDK",

@@ -14,7 +14,7 @@ import pytest
 from drivers.camera import CameraSettings
 from protocols import perpendicular, tilted
 from protocols.catalogue import BUILT_IN, protocol_names, protocol_spec
-from protocols.plan import Capture, Configure, Home, Move, Settle
+from protocols.plan import Capture, Configure, Home, Move, Settle, WarmUp
 from protocols.plan_check import resume_problems
 
 #: the camera settings of every default plan: projector on, 8500 us, gain x1 (16), auto exposure off
@@ -57,6 +57,7 @@ def test_the_default_perpendicular_plan_step_by_step():
         "stops_m": [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0], "frames_per_stop": 300,
         "projector_on": True, "exposure_us": 8500.0, "gain": 16.0, "settle_s": 1.0, "ir": True,
         "ambient_frames": 0, "keep_raw": False,
+        "warm_up_drift_mm_per_min": 0.0, "warm_up_window_s": 60.0, "warm_up_max_s": 1800.0,
     }
 
 
@@ -88,6 +89,14 @@ def test_the_old_name_frames_gives_frames_per_stop():
     assert steps(perpendicular([1.0], frames=7)) == [Home(), Configure(DEFAULT_CAMERA), *stop(1.0, "1.000m", 7)]
 
 
+def test_a_warm_up_comes_after_the_settings_and_before_the_first_move():
+    plan = perpendicular([1.0, 0.5], frames_per_stop=20, warm_up_drift_mm_per_min=0.2, warm_up_window_s=90,
+                         warm_up_max_s=1200)
+    assert steps(plan) == [Home(), Configure(DEFAULT_CAMERA), WarmUp(0.2, 90.0, 1200.0),
+                           *stop(1.0, "1.000m", 20), *stop(0.5, "0.500m", 20)]
+    assert steps(perpendicular([1.0], warm_up_window_s=90)) == [Home(), Configure(DEFAULT_CAMERA), *stop(1.0, "1.000m")]
+
+
 @pytest.mark.parametrize("stops,message", [
     ([], "no stops given"),
     ([1.0, 1.0004], "repeats a distance (to the mm)"),
@@ -113,6 +122,11 @@ def test_the_tilt_is_the_walls_and_moves_nothing():
     assert steps(tilted(tilt_deg=10.0, distance_m=1.5, frames=60)) == \
         steps(tilted(tilt_deg=45.0, distance_m=1.5, frames_per_stop=60)) == \
         [Home(), Configure(DEFAULT_CAMERA), *stop(1.5, "tilted", frames=60)]
+
+
+def test_a_tilted_run_warms_up_before_its_one_stop():
+    assert steps(tilted(distance_m=1.5, frames_per_stop=60, warm_up_drift_mm_per_min=1)) == \
+        [Home(), Configure(DEFAULT_CAMERA), WarmUp(1.0, 60.0, 1800.0), *stop(1.5, "tilted", frames=60)]
 
 
 def test_a_tilt_beyond_the_range_is_refused_when_the_plan_is_made():

@@ -1,4 +1,5 @@
-"""Progress lines for a run in a terminal, fed by the runner's `ProgressEvent`s: stops, frames, the time left."""
+"""Progress lines for a run in a terminal, fed by the runner's `ProgressEvent`s: stops, frames, the time left, and
+the warm-up's wait (in place on a terminal; a line a minute elsewhere)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ class TerminalProgress:
         self.prefix = prefix
         self.t0 = time.monotonic()
         self.first: tuple[int, float] | None = None  # (stop index, time) of the first frame this run captured
+        self.warm_up_minutes = -1  # the warm-up's minutes already reported (not a terminal)
+        self.line_open = False  # a warm-up line waits to be overwritten (a terminal)
 
     def time_left(self, e: ProgressEvent) -> str:
         """", about 1:05 left": the time per frame so far (moves and settling included) times the frames to come."""
@@ -50,6 +53,14 @@ class TerminalProgress:
             self.stream.write(("\r" if self.tty else "") + line + (" " * 10 if self.tty else "") + "\n")
         elif e.kind == "stop_skipped":
             self.stream.write(f"{head} already recorded, skipped\n")
+        elif e.kind == "warm_up":
+            if self.tty:
+                self.stream.write(f"\r{self.prefix}{e.text}\x1b[K")
+                self.line_open = True
+            elif int(e.summary["waited_s"] // 60) > self.warm_up_minutes:
+                self.warm_up_minutes = int(e.summary["waited_s"] // 60)
+                self.stream.write(f"{self.prefix}{e.text}\n")
         elif e.kind == "message":
-            self.stream.write(f"{self.prefix}{e.text}\n")
+            self.stream.write(("\r\x1b[K" if self.line_open else "") + f"{self.prefix}{e.text}\n")
+            self.line_open = False
         self.stream.flush()

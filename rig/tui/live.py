@@ -230,7 +230,7 @@ class LiveRun:
                 s.n_stops = e.n_stops
                 self._frames_total -= self._frames_by_stop.get(e.stop, 0)
                 s.message = f"stop {e.stop} already recorded, skipped"
-            elif e.kind == "message":
+            elif e.kind in ("message", "warm_up"):
                 s.message = e.text
             if tap is not None:
                 s.dropped, s.refused = tap.dropped, tap.refused
