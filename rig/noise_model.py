@@ -64,12 +64,44 @@ class NoiseModel:
                 raise NoiseModelError(f"{source} is a {found} file, newer than this evaluator's {SCHEMA}; update rig "
                                       "(pip install -U rig) or take rig/noise_model.py from the rig that wrote it")
             raise NoiseModelError(f"{source} is not a {SCHEMA} file (schema: {found!r}); export the model with rig export")
-        for term in doc["sigma_terms"]:
+        terms = doc.get("sigma_terms")
+        if not isinstance(terms, list) or not all(isinstance(t, dict) and isinstance(t.get("effect"), str) for t in terms):
+            raise NoiseModelError(f"{source} is damaged: sigma_terms is not a list of terms; export the model again "
+                                  "with rig export")
+        for term in terms:
             if term["effect"] not in TERMS:
                 where = f" (from {term['user_file']})" if term.get("user_file") else ""
                 raise NoiseModelError(f"{source}: sigma has the term {term['effect']!r}{where}, which this evaluator "
                                       f"does not know; evaluate it with rig (rig.models), or export a model without it")
-        return cls(doc, source)
+        params = doc.get("parameters")
+        if not isinstance(params, list) or not all(isinstance(q, dict) and isinstance(q.get("name"), str) for q in params):
+            raise NoiseModelError(f"{source} is damaged: parameters is not a list of named values; export the model "
+                                  "again with rig export")
+        for q in params:
+            value = q.get("value")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise NoiseModelError(f"{source}: parameter {q['name']} is {value!r}, not a finite number; export the "
+                                      "model again with rig export")
+        model = cls(doc, source)
+        model._try()
+        return model
+
+    def _try(self) -> None:
+        """sigma and its error at the middle of the valid ranges: a file whose parts are missing or of the wrong kind
+        fails here, in one NoiseModelError, not later in a KeyError of its user's program."""
+        try:
+            mid = [0.5 * (lo + hi) if lo is not None and hi is not None else 1.0 for lo, hi in
+                   (self.doc["valid"][key] for key in ("z_m", "u_px", "v_px"))]
+            sigma, _ = self.sigma(*mid, with_error=True, **dict.fromkeys(self.inputs, 1.0))
+        except NoiseModelError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+            what = f"{type(e).__name__}: {e}" if not isinstance(e, KeyError) else f"it has no {e}"
+            raise NoiseModelError(f"{self.source} is damaged or not written by rig export ({what}); export the model "
+                                  "again with rig export") from None
+        if not np.isfinite(sigma) or sigma <= 0:
+            raise NoiseModelError(f"{self.source}: sigma is {float(sigma)!r} m inside its valid range; export the model "
+                                  "again with rig export")
 
     # -- what the file holds ---------------------------------------------------------------------
     @property

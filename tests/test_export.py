@@ -403,3 +403,35 @@ def test_a_newer_model_file_asks_for_a_newer_evaluator_not_an_export():
         NoiseModel.from_dict({"schema": "rig.noise-model/2"})
     with pytest.raises(NoiseModelError, match="is not a rig.noise-model/1 file .*; export the model with rig export"):
         NoiseModel.from_dict({"schema": "something/3"})
+
+
+def test_a_malformed_model_file_is_one_noise_model_error_and_nan_is_refused(small_recording):
+    """Issue 52: NoiseModel.load of a damaged file raised bare KeyError / TypeError / ValueError, and NaN parameters
+    gave NaN sigma silently. Each damage below is one NoiseModelError naming the file; nothing else escapes."""
+    import copy
+
+    d = _data(small_recording)
+    with Recording(small_recording) as rec:
+        doc = noise_model_document(_fit_with(parse_model("active"), d, 3), d, rec, small_recording)
+    assert NoiseModel.from_dict(copy.deepcopy(doc), "ok.json").sigma(1.0, 10.0, 5.0) > 0
+
+    def damaged(change):
+        bad = copy.deepcopy(doc)
+        change(bad)
+        return bad
+
+    cases = {
+        "parameters": lambda b: b.pop("parameters"),
+        "NaN k": lambda b: b["parameters"][0].update(value=float("nan")),
+        "text k": lambda b: b["parameters"][0].update(value="0.002"),
+        "no camera": lambda b: b.pop("camera"),
+        "no fx": lambda b: b["camera"]["intrinsics"].pop("fx"),
+        "terms": lambda b: b.update(sigma_terms={"effect": "power_law"}),
+        "valid": lambda b: b["valid"].pop("z_m"),
+        "covariance": lambda b: b.pop("covariance"),
+        "settings": lambda b: b.update(settings=None),
+    }
+    for name, change in cases.items():
+        with pytest.raises(NoiseModelError, match=r"^cam\.json") as e:
+            NoiseModel.from_dict(damaged(change), "cam.json")
+        assert "\n" not in str(e.value) and "rig export" in str(e.value), (name, e.value)
