@@ -203,3 +203,47 @@ def test_sigterm_ends_a_run_like_ctrl_c(tmp_path):
     assert "Traceback" not in rest
     with Recording(out) as rec:
         assert len(rec.stop_labels()) >= 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("links", [True, False], ids=["hard link", "no hard links (FAT)"])
+def test_the_lock_is_never_seen_empty_with_a_delay_injected_between_its_steps(tmp_path, links):
+    """Issue 52: the lock was created empty and filled afterwards, and a second writer took an empty lock as stale:
+    with a delay injected between the two, a second --resume took the lock of a live run. Here a first process takes
+    the lock with 1 s injected before its content is written and before it is linked into place (and, for a file
+    system without hard links, os.link failing as on FAT); this process tries meanwhile. Exactly one holds it."""
+    path = tmp_path / "r.h5"
+    script = (
+        "import errno, json, os, sys, time\n"
+        "import protocols.run_lock as rl\n"
+        "from pathlib import Path\n"
+        "dump, link = json.dump, os.link\n"
+        "def slow_dump(*a, **k):\n"
+        "    time.sleep(1.0); return dump(*a, **k)\n"
+        "def slow_link(*a, **k):\n"
+        f"    time.sleep(1.0)\n"
+        f"    if not {links}: raise OSError(errno.EPERM, 'Operation not permitted')\n"
+        "    return link(*a, **k)\n"
+        "rl.json.dump, rl.os.link = slow_dump, slow_link\n"
+        "print('started', flush=True)\n"
+        "try:\n"
+        f"    rl.RunLock(Path({str(path)!r})).acquire(); print('held', flush=True)\n"
+        "except rl.RecordingError as e:\n"
+        "    print('refused', flush=True)\n"
+        "time.sleep(3)\n")
+    first = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": os.getcwd()})
+    try:
+        assert first.stdout.readline().strip() == "started"
+        time.sleep(2.4 if not links else 0.3)  # without links: the lock exists, empty, from 2 s to 3 s
+        try:
+            mine = RunLock(path).acquire()
+        except RecordingError:
+            mine = None
+        theirs = first.stdout.readline().strip()
+        assert (mine is not None) != (theirs == "held"), (mine, theirs)
+        if mine is not None:
+            mine.release()
+    finally:
+        first.kill()
+        first.wait()
