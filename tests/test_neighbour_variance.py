@@ -142,7 +142,7 @@ def test_the_pixel_kurtosis_is_the_formula_in_numpy():
     d.m4_m4 = d.m2_m2**2 / np.maximum(d.n - 1, 1) * np.random.default_rng(14).uniform(1, 5, len(d))
     v, nu_v = (a.copy() for a in d.neighbour_variance)
     v[:3], nu_v[3:6], d.n[6:8], d.m4_m4[8], d.m4_m4[9] = 0.0, 0.0, 1.0, np.inf, np.nan
-    d.__dict__["neighbour_variance"] = (v, nu_v)
+    d.__dict__["neighbour_variance"] = d.__dict__["kurtosis_variance"] = (v, nu_v)
     n = d.n
     with np.errstate(all="ignore"):
         m4_over_sigma4 = d.m4_m4 / v**2 * (nu_v - 2) * (nu_v - 4) / nu_v**2
@@ -158,3 +158,36 @@ def test_the_pixel_kurtosis_is_the_formula_in_numpy():
     with np.errstate(all="ignore"):
         rtol = (7 * np.abs(first) / np.abs(first - 3 * (2 * n - 3)) + 2) * EPS
     assert np.all(np.abs(got[finite] - want[finite]) <= rtol[finite] * np.abs(want[finite]))
+
+
+@pytest.mark.numeric
+@pytest.mark.parametrize("projector_on, power", [(True, 6.0), (False, 4.0)])
+def test_a_tilted_stops_kurtosis_variance_is_the_range_scaled_sums_written_out(projector_on, power):
+    """On a stop spanning a range (a tilted wall, Z = 0.8 / (1 + 0.6 x)), each neighbour's M2 is scaled to the
+    pixel's range by (Z_i / Z_j)^(2 lambda0) before pooling; a perpendicular stop (the second) keeps the plain
+    neighbours' variance. Each term is one pow (a few ulps in numba's libm and numpy's) and one product, then a sum of
+    k positive terms: within (k + 8) eps of each other."""
+    rng = np.random.default_rng(4)
+    h, w = 11, 17
+    v, u = np.divmod(np.arange(h * w), w)
+    tilted = 0.8 / (1 + 0.6 * (u - 8) / 9.0)
+    z = np.concatenate([tilted, np.full(h * w, 1.2) + rng.normal(0, 1e-5, h * w)])
+    m2 = rng.gamma(4.0, 2e-7, 2 * h * w) * (z / 0.8) ** power
+    n = rng.integers(20, 40, 2 * h * w).astype(float)
+    stop = np.repeat(np.arange(2, dtype=np.int32), h * w)
+    d = ModelData(z_m=z, m2_m2=m2, m4_m4=3 * m2**2, n=n, stop=stop, u_px=np.tile(u, 2).astype(np.float32),
+                  v_px=np.tile(v, 2).astype(np.float32), projector_on=np.full(2 * h * w, projector_on))
+    var, dof = d.kurtosis_variance
+    plain, plain_dof = d.neighbour_variance
+    half = KURTOSIS_WINDOW_PX // 2
+    for i in range(h * w):  # the tilted stop, by hand
+        near = (np.abs(u - u[i]) <= half) & (np.abs(v - v[i]) <= half)
+        near[i] = False
+        terms = m2[:h * w][near] * (z[i] / z[:h * w][near]) ** power
+        assert dof[i] == (n[:h * w][near] - 1).sum()
+        want = terms.sum() / dof[i]
+        assert abs(var[i] - want) <= (near.sum() + 8) * EPS * want, (i, var[i], want)
+    assert np.array_equal(var[h * w:], plain[h * w:]) and np.array_equal(dof[h * w:], plain_dof[h * w:])
+    # the scaling takes the range's gradient out: the far edge's variance is not the neighbours' nearer one
+    edge = u == 0
+    assert np.all(var[:h * w][edge] > plain[:h * w][edge])

@@ -25,6 +25,9 @@ KURTOSIS_WINDOW_PX = 7
 ROUNDING_SHARE = 0.02
 #: usable pixels a range window needs for its kurtosis to count
 MIN_KURTOSIS_PIXELS = 20
+#: a stop whose pixels' ln Z spans more than this (1st to 99th percentile: a tilted wall) has its kurtosis standardised
+#: by its neighbours' variances scaled to each pixel's range (`kurtosis_variance`)
+RANGE_SPAN_TO_SCALE = 0.05
 
 
 def pooled_from_sums(count: float, sw: float, swb: float, sw2: float, sw2b: float, sw2b2: float) -> tuple[float, float]:
@@ -97,15 +100,48 @@ class ShapeStatistics:
         return var_out, nu_out
 
     @cached_property
+    def kurtosis_variance(self) -> tuple[np.ndarray, np.ndarray]:
+        """The neighbours' variance that standardises each pixel's fourth moment, and its degrees of freedom:
+        `neighbour_variance`, except on a stop spanning a range of distances (ln Z over RANGE_SPAN_TO_SCALE: a tilted
+        wall). There the variance grows as Z^(2 lambda) across the image (Z^6 for active stereo), and the square's
+        neighbours, cut on one side at the image's edge (or curved), would bias v by it: each neighbour's M2 is
+        scaled to the pixel's range first, by (Z_i / Z_j)^(2 lambda0), lambda0 = 3 with the projector on (or not
+        known) and 2 off (eq. sigma_Z = k Z^lambda). A perpendicular stop's are used as measured."""
+        v, nu_v = self.neighbour_variance
+        if len(self) == 0 or not (np.isfinite(self.u_px).all() and np.isfinite(self.v_px).all()):
+            return v, nu_v
+        slices = self.stop_slices()
+        groups = slices if slices is not None else [np.flatnonzero(self.stop == s) for s in np.unique(self.stop)]
+        projector = getattr(self, "projector_on", None)
+        shape = (int(self.v_px.max()) + 1, int(self.u_px.max()) + 1)
+        out = None
+        for m in groups:
+            z = np.asarray(self.z_m[m], dtype=np.float64)
+            ok = np.isfinite(z) & (z > 0)
+            if ok.sum() < 3 or np.subtract(*np.percentile(np.log(z[ok]), [99, 1])) < RANGE_SPAN_TO_SCALE:
+                continue
+            if out is None:
+                out = (np.array(v, dtype=np.float64), np.array(nu_v, dtype=np.float64))
+            on = True if projector is None else bool(np.asarray(projector)[m][0])
+            vm, um = self.v_px[m].astype(np.int64), self.u_px[m].astype(np.int64)
+            m2_img, nu_img, z_img = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+            m2_img[vm, um], nu_img[vm, um], z_img[vm, um] = self.m2_m2[m], self.nu[m], np.where(ok, z, 0.0)
+            var_img, nu_v_img = np.empty(shape), np.empty(shape)
+            _others_scaled_to_range(m2_img, nu_img, z_img, 6.0 if on else 4.0, KURTOSIS_WINDOW_PX // 2, var_img,
+                                    nu_v_img)
+            out[0][m], out[1][m] = var_img[vm, um], nu_v_img[vm, um]
+        return out if out is not None else (v, nu_v)
+
+    @cached_property
     def pixel_kurtosis(self) -> np.ndarray:
         """Each pixel's unbiased estimate of its samples' kurtosis (3 for a normal distribution).
 
-        M4 is standardised by the variance v its neighbours measure (`neighbour_variance`), not by
+        M4 is standardised by the variance v its neighbours measure (`kurtosis_variance`), not by
         a model's variance, which is what is in doubt. For samples about their own mean,
         E[M4] / sigma^4 = (n - 1) / n^2 ((n^2 - 3n + 3) beta + 3 (2n - 3)); v's own noise is removed
         by E[1 / v^2] = nu^2 / ((nu - 2)(nu - 4)) / sigma^4 (v ~ sigma^2 chi2_nu / nu). NaN where it
         cannot be formed."""
-        v, nu_v = self.neighbour_variance
+        v, nu_v = self.kurtosis_variance
         out = np.empty(len(self))
         _pixel_kurtosis(*(np.ascontiguousarray(a, dtype=np.float64) for a in (self.m4_m4, v, nu_v, self.n)), out)
         return out
@@ -115,7 +151,7 @@ class ShapeStatistics:
         """Pixels whose kurtosis estimate means something: formed, and not dominated by rounding to the
         depth unit (q^2 / 12 below ROUNDING_SHARE of the neighbours' variance), where the samples are
         a few discrete levels whose spread depends on each pixel's own position between them."""
-        v, _ = self.neighbour_variance
+        v, _ = self.kurtosis_variance
         q2 = self.depth_unit_m**2 if np.isfinite(self.depth_unit_m) else 0.0
         with np.errstate(invalid="ignore"):
             return np.isfinite(self.pixel_kurtosis) & (q2 / 12 < ROUNDING_SHARE * v)
@@ -196,6 +232,31 @@ def _others_in_window(m2, nu, half, var_out, nu_out):  # pragma: no cover - comp
             n_other = np.rint(s_nu - nu[y, x])
             if n_other > 4:
                 var_out[y, x] = (s_m2 - m2[y, x]) / n_other
+                nu_out[y, x] = n_other
+            else:
+                var_out[y, x] = np.nan
+                nu_out[y, x] = np.nan
+
+
+@njit(cache=True, nogil=True)
+def _others_scaled_to_range(m2, nu, z, power, half, var_out, nu_out):  # pragma: no cover - compiled
+    """As `_others_in_window`, each other pixel's M2 first scaled to the pixel's range Z: by (Z / Z_j)^power
+    (`ShapeStatistics.kurtosis_variance`); pixels with no range (z <= 0) or no samples are left out."""
+    h, w = m2.shape
+    for y in range(h):
+        for x in range(w):
+            zi = z[y, x]
+            s_m2, s_nu = 0.0, 0.0
+            if zi > 0:
+                for k in range(max(0, y - half), min(h, y + half + 1)):
+                    for j in range(max(0, x - half), min(w, x + half + 1)):
+                        if (k == y and j == x) or nu[k, j] <= 0 or z[k, j] <= 0:
+                            continue
+                        s_m2 += m2[k, j] * (zi / z[k, j]) ** power
+                        s_nu += nu[k, j]
+            n_other = np.rint(s_nu)
+            if n_other > 4:
+                var_out[y, x] = s_m2 / n_other
                 nu_out[y, x] = n_other
             else:
                 var_out[y, x] = np.nan
