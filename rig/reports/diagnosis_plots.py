@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 from ..diagnosis import BinComparison, Diagnosis  # noqa: E402
 from .shape_plot import plot_shape  # noqa: E402
 from .output_file import save_figure  # noqa: E402
+from .verdict_state import headline_state, plot_colour  # noqa: E402
 
 
 def _margin_in(labels: list[str], points: float, pad_in: float) -> float:
@@ -117,24 +118,24 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
     names = ["start"] + [f"+ {s.added.effect.name}" for s in diag.steps[1:]]
     errors = [s.headline.error_pct for s in diag.steps]
     noise = [s.headline.noise_pct for s in diag.steps]
-    within = [s.headline.within_noise for s in diag.steps]
+    states = [headline_state(s.headline) for s in diag.steps]
     if diag.unexplained is not None:
         for st in diag.unexplained.steps:
             names.append(f"+ {st.added}")
             errors.append(st.headline.error_pct)
             noise.append(st.headline.noise_pct)
-            within.append(st.headline.within_noise)
+            states.append(headline_state(st.headline))
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.4))
     # the step names slant at 20 degrees below the bars
     fig.subplots_adjust(left=0.08, right=0.985, top=0.92, wspace=0.2,
                         bottom=min(0.45, (0.2 + np.sin(np.radians(20)) * _margin_in(names, 8, 0.1)) / 4.4))
     x = np.arange(len(names))
-    ax.bar(x, errors, color=["tab:green" if w else "tab:red" for w in within])
+    ax.bar(x, errors, color=[plot_colour(st) for st in states])
     ax.plot(x, noise, "k_", ms=30, mew=2, label="sampling noise alone")
     ax.set_yscale("log")
     ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
     ax.set_ylabel("headline error [%]")
-    ax.set_title("The path: green = every statistic within noise")
+    ax.set_title("The path: green within noise, red beyond, grey not judged")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
     fits = [(diag.model_fit, diag.model_headline, "tab:red"), (diag.catalogue_fit, diag.catalogue_headline, "tab:orange"),
