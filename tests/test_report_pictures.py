@@ -8,6 +8,7 @@ import re
 from html.parser import HTMLParser
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import pytest
 from cli_in_process import rig_in_process
 from simrig import record_perpendicular
@@ -58,10 +59,10 @@ def css_rule(style: str, selector: str) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> dict[str, Path]:
-    """A projector-on run and a projector-off run of one camera: k and lambda differ by ~100 s.e."""
+    """Two projector-on runs of one camera (seeds 1, 2), and a projector-off run: k and lambda differ by ~100 s.e."""
     root = tmp_path_factory.mktemp("tiny")
     out = {}
-    for name, seed, on in (("on-1", 1, True), ("off", 9, False)):
+    for name, seed, on in (("on-1", 1, True), ("on-2", 2, True), ("off", 9, False)):
         out[name] = root / f"{name}.h5"
         record_perpendicular(out[name], seed=seed, width=32, frames=8, stops_m=STOPS, exposure_us=3300.0, gain=32.0,
                              projector_on=on)
@@ -81,3 +82,85 @@ def test_a_verdict_beyond_noise_is_never_in_a_green_box_and_full_reports_wrap(ti
     pre = css_rule(page.style, "pre")
     assert pre["white-space"] == "pre-wrap" and pre["overflow-wrap"] == "anywhere"
     # the alike pair's box is green: tests/test_recordings_compared.py
+
+
+@pytest.fixture(scope="module")
+def fitted(tiny):
+    from rig.fleet.many import fit_for_comparison
+    from rig.recordings.recording_fits import FitJob
+
+    return [fit_for_comparison(FitJob(str(tiny[n]))) for n in ("on-1", "on-2")]
+
+
+def kept(monkeypatch, draw) -> list:
+    """The figures `draw()` saves, kept open (plt.close a no-op while it runs) to read their artists."""
+    before = set(plt.get_fignums())
+    monkeypatch.setattr(plt, "close", lambda *a, **k: None)
+    draw()
+    monkeypatch.undo()
+    figs = [plt.figure(n) for n in plt.get_fignums() if n not in before]
+    assert figs
+    return figs
+
+
+def labelled_ticks(axis) -> list[str]:
+    """The texts of the major tick labels a reader sees: inside the view, not empty."""
+    low, high = sorted(axis.get_view_interval())
+    return [t.get_text() for t, v in zip(axis.get_ticklabels(), axis.get_majorticklocs())
+            if low <= v <= high and t.get_visible() and t.get_text()]
+
+
+def test_every_axis_has_its_unit_and_a_log_axis_several_labels(fitted, monkeypatch, tmp_path):
+    from rig.reports.comparison_plots import plot_overlay
+
+    [fig] = kept(monkeypatch, lambda: plot_overlay(fitted, tmp_path / "overlay.png"))
+    try:
+        for ax in fig.axes:
+            assert ax.get_xlabel() == "Z [m]" and ax.get_ylabel() == "σ_Z [mm]"
+        loglog = fig.axes[1]
+        assert loglog.get_xscale() == loglog.get_yscale() == "log"
+        # 0.5-2 m and ~1-13 mm: matplotlib's default would label 1 (m) alone and 1, 10 (mm)
+        x, y = labelled_ticks(loglog.xaxis), labelled_ticks(loglog.yaxis)
+        assert len(x) >= 3 and len(y) >= 3, (x, y)
+        assert [float(t) for t in x] == sorted(float(t) for t in x)  # numbers, in order
+    finally:
+        plt.close(fig)
+
+
+def test_the_repeatability_plot_names_its_runs_gives_units_and_keeps_the_legend_off_them(fitted, monkeypatch,
+                                                                                          tmp_path):
+    from rig.recordings.comparison import scatter
+    from rig.reports.comparison_plots import plot_runs
+
+    scatters = scatter(fitted)
+    [fig] = kept(monkeypatch, lambda: plot_runs(fitted, scatters, tmp_path / "runs.png"))
+    try:
+        panels = {ax.get_title().split(":")[0]: ax for ax in fig.axes}
+        assert panels["k"].get_ylabel() == "k [m^(1-lambda)]" and panels["lambda"].get_ylabel() == "lambda [1]"
+        fig.canvas.draw()
+        legend = fig.legends[0].get_window_extent()
+        for ax in fig.axes:
+            assert [t.get_text() for t in ax.get_xticklabels()] == ["on-1.h5", "on-2.h5"]
+            assert "[" in ax.get_ylabel() and "?" not in ax.get_ylabel()
+            points = ax.transData.transform(ax.lines[0].get_xydata())  # the runs' markers, in pixels
+            assert not any(legend.contains(px, py) for px, py in points)
+            assert not legend.overlaps(ax.get_window_extent())
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize("low, high, least", [(1.1, 1.9, 2), (0.3, 3.0, 3), (0.1, 1e5, 5)])
+def test_a_log_axis_of_any_span_has_several_labelled_ticks(low, high, least):
+    from rig.reports.log_ticks import label_log_axis
+
+    fig, ax = plt.subplots()
+    try:
+        ax.set_yscale("log")
+        ax.plot([0, 1], [low, high])
+        label_log_axis(ax.yaxis)
+        fig.canvas.draw()
+        shown = labelled_ticks(ax.yaxis)
+        assert least <= len(shown) <= 12, shown  # several, and not a crowd
+        assert all(low * 0.9 <= float(t) <= high * 1.1 for t in shown)
+    finally:
+        plt.close(fig)

@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 
 from ..diagnosis import BinComparison, Diagnosis  # noqa: E402
 from .shape_plot import plot_shape  # noqa: E402
+from .log_ticks import label_log_axis  # noqa: E402
 from .output_file import save_figure  # noqa: E402
 from .verdict_state import headline_state, plot_colour  # noqa: E402
 
@@ -90,6 +91,7 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     ax.barh(names[::-1], vals[::-1], color=colors[::-1])
     ax.set_xscale("log")
     ax.axvline(10, color="k", ls=":", lw=0.8)
+    label_log_axis(ax.xaxis)
     ax.set_xlabel("evidence: BIC drop when the effect is added (log scale; dotted: significance)")
     ax.set_title("Candidate effects")
     p = out / "diagnosis-candidates.png"
@@ -133,6 +135,7 @@ def plot_path(diag: Diagnosis, path: Path) -> None:
     ax.bar(x, errors, color=[plot_colour(st) for st in states])
     ax.plot(x, noise, "k_", ms=30, mew=2, label="sampling noise alone")
     ax.set_yscale("log")
+    label_log_axis(ax.yaxis)
     ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
     ax.set_ylabel("headline error [%]")
     ax.set_title("The path: green within noise, red beyond, grey not judged")
