@@ -164,3 +164,30 @@ def test_a_log_axis_of_any_span_has_several_labelled_ticks(low, high, least):
         assert all(low * 0.9 <= float(t) <= high * 1.1 for t in shown)
     finally:
         plt.close(fig)
+
+
+def test_a_spatially_constant_sigma_map_says_its_value_instead_of_a_colour_bar(small_recording, monkeypatch,
+                                                                               tmp_path):
+    """The paper's model, k Z^lambda, has no term over the image: its map is one number a range, not a colour scale
+    stretched over float rounding."""
+    from rig.noise_model import NoiseModel
+    from rig.reports.sigma_map import write_sigma_maps
+
+    out = tmp_path / "m.json"
+    assert rig_in_process("export", small_recording, "-o", out, "--jobs", "1", "-q").returncode == 0
+    model = NoiseModel.load(out)
+    [fig] = kept(monkeypatch, lambda: write_sigma_maps(model, [0.5, 2.0], tmp_path / "m.sigma-map"))
+    try:
+        panels = [ax for ax in fig.axes if ax.get_title().startswith("Z = ")]
+        assert len(panels) == 2 and len(fig.axes) == 2  # no colour bar's axes
+        k, lam = (model.doc["parameters"][i]["value"] for i in (0, 1))
+        for ax, z in zip(panels, (0.5, 2.0)):
+            assert not ax.images
+            [text] = [t.get_text() for t in ax.texts]
+            value_mm = float(text.split(":\n")[1].split(" mm")[0])
+            assert text.startswith("constant over the image:")
+            # the value shown is k Z^lambda to its 4 printed digits (rounding: half a unit in the 4th, 5e-4)
+            assert value_mm == pytest.approx(1e3 * k * z**lam, rel=5e-4)
+            assert ax.get_xlabel() == "u (px)" and ax.get_ylabel() == "v (px)"
+    finally:
+        plt.close(fig)
