@@ -9,6 +9,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import matplotlib.pyplot as plt
+import numpy as np
 import pytest
 from cli_in_process import rig_in_process
 from simrig import record_perpendicular
@@ -191,3 +192,28 @@ def test_a_spatially_constant_sigma_map_says_its_value_instead_of_a_colour_bar(s
             assert ax.get_xlabel() == "u (px)" and ax.get_ylabel() == "v (px)"
     finally:
         plt.close(fig)
+
+
+@pytest.mark.slow  # 3-4 s: a diagnosis runs every candidate effect
+def test_the_before_after_plot_shows_a_radial_effects_error_by_radius(monkeypatch, tmp_path):
+    """A hidden slant_range (sigma grows with the ray's length, so with the radius): by range the start and final
+    curves overlap; by radius the start's residual climbs across the image and the final's is flat."""
+    from rig.cli import main
+
+    rec = tmp_path / "s.h5"
+    assert main(["simulate", "--seed", "2", "--effect", "slant_range", "--width", "32", "--frames", "8", str(rec)]) == 0
+    figs = kept(monkeypatch, lambda: main(["diagnose", str(rec), "--out", str(tmp_path / "rep")]))
+    try:
+        [fig] = [f for f in figs if any(ax.get_title().startswith("by radius") for ax in f.axes)]
+        by = {ax.get_title().split(":")[0]: ax for ax in fig.axes}
+        assert by["by range"].get_xlabel() == "Z [m]" and by["by radius"].get_xlabel() == "ρ = radius / f [1]"
+        curves = lambda ax: {c.get_label(): c.lines[0].get_ydata() for c in ax.containers}  # noqa: E731 (errorbars)
+        lines = curves(by["by radius"])
+        start, final = lines["active"], lines["active+slant_range"]
+        spread = lambda y: float(np.ptp(y))  # noqa: E731  (percent of ln sigma)
+        assert spread(start) > 15 and spread(start) > 4 * spread(final), lines
+        ranges = curves(by["by range"])
+        assert len(ranges) == 2 and spread(ranges["active"]) < spread(start) / 4  # by range the effect is hidden
+    finally:
+        for f in figs:
+            plt.close(f)
