@@ -217,3 +217,24 @@ def test_the_before_after_plot_shows_a_radial_effects_error_by_radius(monkeypatc
     finally:
         for f in figs:
             plt.close(f)
+
+
+def test_the_fit_page_has_a_measured_over_predicted_panel(small_recording, monkeypatch, tmp_path):
+    figs = kept(monkeypatch, lambda: rig_in_process("fit", small_recording, "--report", tmp_path / "rep", "-q"))
+    try:
+        page = (tmp_path / "rep" / "fit.html").read_text()
+        assert '<img alt="fit-measured-predicted"' in page and page.count("data:image/png;base64,") == 2
+        [fig] = [f for f in figs if any(ax.get_ylabel() == "σ measured / σ predicted [1]" for ax in f.axes)]
+        assert [(ax.get_title(), ax.get_xlabel()) for ax in fig.axes] == [("by range", "Z [m]"),
+                                                                         ("by radius", "ρ = radius / f [1]")]
+        fig.canvas.draw()
+        legend = fig.axes[0].get_legend().get_window_extent()
+        for ax in fig.axes:
+            [points] = ax.containers
+            ratio = points.lines[0].get_ydata()
+            low, high = ax.get_ylim()
+            assert low < 1 < high and np.all((low < ratio) & (ratio < high))  # 1 and every point in view
+            assert not any(legend.contains(*px) for px in ax.transData.transform(points.lines[0].get_xydata()))
+    finally:
+        for f in figs:
+            plt.close(f)

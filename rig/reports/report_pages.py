@@ -13,6 +13,7 @@ from ..diagnosis.bins import pooled_sigma, sigma_by_range
 from ..recordings.comparison import Pair, Scatter, misfit_caution, repeatability_verdict
 from ..recordings.recording_fits import RecordingResult, summarise
 from .comparison_plots import plot_overlay
+from .measured_predicted import plot_measured_predicted
 from .comparison_text import difference_rows, results_rows, scatter_rows, setup_rows
 from .html_page import figures, page, run_table, summary, table
 from .run_info import RunInfo, run_info
@@ -36,16 +37,18 @@ def write_fit_page(title: str, headline: str, report: str, plots: list[Path], ou
 
 
 def fit_report(path: str, fit, d, h, text: str, out_dir: str | Path, notes: list[str]) -> Path:
-    """`rig fit --report DIR`: fit.html with the run's metadata and the plot of sigma against range (measured per stop,
-    the model's curve on the optical axis) beside it."""
+    """`rig fit --report DIR`: fit.html with the run's metadata, the plot of sigma against range (measured per stop,
+    the model's curve on the optical axis) and sigma measured / predicted by range and by radius."""
 
 
     with Recording(path) as rec:
         labels = rec.stop_labels()
         measured = pooled_sigma(d, d.stop, labels) if len(labels) > 1 else sigma_by_range(d)
         result = summarise(path, fit, d, h, measured, rec, notes, bool(d.projector_on.any()))
-    plot = plot_overlay([result], Path(out_dir) / "fit-sigma.png")
-    return write_fit_page(f"Range-error fit: {path}", f"{fit.model.name}: headline error {h}", text, [plot], out_dir,
+    plots = [plot_overlay([result], Path(out_dir) / "fit-sigma.png")]
+    ratio = plot_measured_predicted(h, fit.model.name, Path(out_dir) / "fit-measured-predicted.png")
+    plots += [ratio] if ratio is not None else []
+    return write_fit_page(f"Range-error fit: {path}", f"{fit.model.name}: headline error {h}", text, plots, out_dir,
                           run_info(path, utc_now(), package_version()), headline_state(h))
 
 
