@@ -238,3 +238,42 @@ def test_the_fit_page_has_a_measured_over_predicted_panel(small_recording, monke
     finally:
         for f in figs:
             plt.close(f)
+
+
+#: what a person's browser window might be: half a laptop's screen
+VIEWPORT = (800, 600)
+PROBE = """<script>
+const boxes = [...document.querySelectorAll('pre, table')];
+document.body.dataset.page = [document.documentElement.scrollWidth, document.documentElement.clientWidth].join(' ');
+document.body.dataset.pre = boxes.filter(b => b.tagName == 'PRE').map(b => [b.scrollWidth, b.clientWidth].join(' ')).join(';');
+</script></body>"""
+
+
+@pytest.mark.slow  # 3 s wall: Chromium starts (0.5 s of its CPU), after a fit
+def test_a_report_rendered_by_chromium_fits_the_window_and_hides_no_text(small_recording, tmp_path):
+    """The fit page in headless Chromium (Debian's chromium) at 800 x 600: the page is no wider than the window, and
+    the "Full report" block (lines of 250 characters) shows every line whole: its scroll width is its width. A small
+    script added at the end of a copy of the page writes what the browser laid out into the DOM Chromium dumps."""
+    import resource
+    import shutil
+    import subprocess
+
+    browser = shutil.which("chromium")
+    assert browser, "this test renders a report in Chromium: install it (Debian: apt-get install chromium)"
+    r = rig_in_process("fit", small_recording, "--report", tmp_path / "rep", "-q")
+    assert r.returncode == 0, r.stderr
+    page = (tmp_path / "rep" / "fit.html").read_text()
+    assert max(map(len, page.split("<pre>")[1].splitlines())) > 150  # a line wider than the window, to wrap
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.replace("</body>", PROBE))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    dom = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'profile'}",
+                          f"--window-size={VIEWPORT[0]},{VIEWPORT[1]}", "--dump-dom", probe.as_uri()],
+                         capture_output=True, text=True, timeout=60).stdout
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    print(f"chromium CPU {after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime:.2f} s")
+    scroll, client = map(int, re.search(r'data-page="(\d+) (\d+)"', dom).groups())
+    assert 0 < client <= VIEWPORT[0] and scroll <= client, (scroll, client)  # no sideways scrolling of the page
+    [pre] = re.search(r'data-pre="([^"]*)"', dom).group(1).split(";")
+    pre_scroll, pre_client = map(int, pre.split())
+    assert pre_scroll <= pre_client, pre  # nothing of the full report hidden to the right

@@ -14,7 +14,7 @@ from .verdict_state import COLOURS
 STYLE = """
 body { font-family: system-ui, sans-serif; max-width: 1200px; margin: 2em auto; padding: 0 1em; color: #222; }
 h1 { font-size: 1.4em; } .summary { font-size: 1.15em; padding: 0.8em; border-left: 4px solid; }
-table { border-collapse: collapse; } td, th { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
+table { border-collapse: collapse; display: block; max-width: 100%; overflow-x: auto; } td, th { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
 tr.sig td { background: #f4f8ff; } table.run th { font-weight: normal; color: #555; } img { max-width: 100%; }
 pre { background: #f6f6f6; padding: 1em; white-space: pre-wrap; overflow-wrap: anywhere; }
 """ + "".join(f".verdict-{state} {{ background: {bg}; border-color: {border}; }}\n"
