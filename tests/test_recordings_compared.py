@@ -95,10 +95,13 @@ def test_repeatability_finds_honest_errors_and_says_which_parameter_varies(runs,
 
 def test_two_units_are_alike_and_projector_off_changes_the_law(runs, tmp_path):
     a, b = runs["alike"][:2]
-    r = rig_in_process("compare", a, b, "--jobs", "1", "--plot", tmp_path / "units.png", "-q")
+    r = rig_in_process("compare", a, b, "--jobs", "1", "--plot", tmp_path / "units.png", "--report", tmp_path / "same",
+                       "-q")
     assert r.returncode == 0, r.stderr
     assert "the same set-up (depth unit, baseline, intrinsics, resolution" in r.stdout
     assert "Alike within their errors" in r.stdout and "k within noise" in r.stdout
+    # within noise: the one verdict in a green box (tests/test_report_pictures.py: beyond noise never is)
+    assert '<p class="summary verdict-within"' in (tmp_path / "same" / "compare.html").read_text()
     r = rig_in_process("compare", a, runs["off"][0], "--jobs", "1", "--plot", tmp_path / "onoff.png",
                        "--report", tmp_path / "cmp", "--json")
     doc = json.loads(r.stdout)

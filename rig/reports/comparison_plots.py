@@ -35,10 +35,22 @@ def plot_overlay(results: list[RecordingResult], path: str | Path) -> Path:
 
 
 def plot_runs(results: list[RecordingResult], scatters: list[Scatter], path: str | Path) -> Path:
-    """Each parameter run by run (+-1 Cramer-Rao error), with the runs' mean and +-1 run-to-run standard deviation."""
+    """Each parameter run by run (+-1 Cramer-Rao error), with the runs' mean and +-1 run-to-run standard deviation;
+    the runs named by their files, each parameter with its unit, the legend below the panels (never on a run)."""
     path = Path(path)
+    fig = runs_figure(results, scatters)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure(fig, path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def runs_figure(results: list[RecordingResult], scatters: list[Scatter]):
+    """The figure of `plot_runs`, unsaved."""
     fitted = [r for r in results if not r.error]
-    fig, axes = plt.subplots(1, len(scatters), figsize=(4.5 * len(scatters), 3.6), squeeze=False)
+    names = [r.name for r in fitted]
+    fig, axes = plt.subplots(1, len(scatters), figsize=(4.5 * len(scatters), 3.6 + 0.07 * max(map(len, names))),
+                             squeeze=False)
     x = np.arange(1, len(fitted) + 1)
     for ax, s in zip(axes[0], scatters):
         v = [r.values[s.parameter] for r in fitted]
@@ -47,12 +59,12 @@ def plot_runs(results: list[RecordingResult], scatters: list[Scatter], path: str
         ax.axhline(s.mean, color="k", lw=1)
         ax.axhspan(s.mean - s.sd, s.mean + s.sd, color="0.85", label="mean ±1 run-to-run s.d.")
         ax.set_title(f"{s.parameter}: scatter / error = {s.ratio:.2f}", fontsize=10)
-        ax.set_xlabel("run")
-        ax.set_xticks(x)
+        unit = next((r.units[s.parameter] for r in fitted if s.parameter in r.units), "")
+        ax.set_ylabel(f"{s.parameter} [{unit or '?'}]")
+        ax.set_xlabel("run (recording)")
+        ax.set_xticks(x, names, rotation=30, ha="right", fontsize=7)
         ax.grid(True, alpha=0.3)
-    axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, path, dpi=100)
-    plt.close(fig)
-    return path
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncols=2, fontsize=8, frameon=False)
+    return fig

@@ -6,9 +6,10 @@ import html
 from pathlib import Path
 
 from ..diagnosis import Diagnosis, render_text
-from .html_page import figures, page, run_table
+from .html_page import figures, page, run_table, summary
 from .run_info import RunInfo
 from .output_file import write_text
+from .verdict_state import UNJUDGED, headline_state
 
 
 def write_html(diag: Diagnosis, plots: list[Path], out_dir: str | Path, run: RunInfo | None = None) -> Path:
@@ -18,7 +19,7 @@ def write_html(diag: Diagnosis, plots: list[Path], out_dir: str | Path, run: Run
         f"<tr class='{'sig' if c.significant else ''}'><td>{c.effect.name}</td><td>{c.dbic:.1f}</td><td>{c.lrt:.1f}</td>"
         f"<td>{c.df}</td><td>{c.p_value:.1e}</td><td>{html.escape(c.effect.signature)}</td></tr>" for c in diag.candidates)
     body = f"""{run_table(run)}
-<p class="summary">{html.escape(diag.summary())}</p>
+{summary(diag.summary(), diagnosis_state(diag))}
 <p>Headline error of {html.escape(diag.model_fit.model.name)}: {html.escape(str(diag.model_headline))}
 {"<br>With " + html.escape(diag.final_fit.model.name) + ": " + html.escape(str(diag.final_headline)) if diag.final_fit is not diag.model_fit else ""}</p>
 <h2>The path</h2>
@@ -42,4 +43,9 @@ def path_rows(diag: Diagnosis) -> str:
         rows += [(f"+ {st.added}" + (f" for {st.family}" if st.is_empirical else " (the catalogue tried again)"),
                   st.fit.model.name, st.headline) for st in diag.unexplained.steps]
     return "".join(f"<tr><td>{html.escape(c)}</td><td>{html.escape(m)}</td><td>{h.error_pct:.2f} % (noise {h.noise_pct:.2f} %)</td>"
-                   f"<td>{html.escape(h.verdict())}</td></tr>" for c, m, h in rows)
+                   f"<td class='verdict-{headline_state(h)}'>{html.escape(h.verdict())}</td></tr>" for c, m, h in rows)
+
+
+def diagnosis_state(diag: Diagnosis) -> str:
+    """The summary's state: unjudged when the model's headline judged nothing, else the final model's state."""
+    return headline_state(diag.final_headline) if diag.model_headline.judged else UNJUDGED

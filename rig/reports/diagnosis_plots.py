@@ -12,7 +12,9 @@ import numpy as np  # noqa: E402
 
 from ..diagnosis import BinComparison, Diagnosis  # noqa: E402
 from .shape_plot import plot_shape  # noqa: E402
+from .log_ticks import label_log_axis  # noqa: E402
 from .output_file import save_figure  # noqa: E402
+from .verdict_state import headline_state, plot_colour  # noqa: E402
 
 
 def _margin_in(labels: list[str], points: float, pad_in: float) -> float:
@@ -89,6 +91,7 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
     ax.barh(names[::-1], vals[::-1], color=colors[::-1])
     ax.set_xscale("log")
     ax.axvline(10, color="k", ls=":", lw=0.8)
+    label_log_axis(ax.xaxis)
     ax.set_xlabel("evidence: BIC drop when the effect is added (log scale; dotted: significance)")
     ax.set_title("Candidate effects")
     p = out / "diagnosis-candidates.png"
@@ -112,48 +115,53 @@ def write_plots(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
 
 
 def plot_path(diag: Diagnosis, path: Path) -> None:
-    """The path: headline error after each step (and the noise level); sigma's residual by range at the
-    start, after the catalogue's effects and at the end."""
+    """The path: headline error after each step (and the noise level); sigma's residual by range and by radius at
+    the start, after the catalogue's effects and at the end."""
     names = ["start"] + [f"+ {s.added.effect.name}" for s in diag.steps[1:]]
     errors = [s.headline.error_pct for s in diag.steps]
     noise = [s.headline.noise_pct for s in diag.steps]
-    within = [s.headline.within_noise for s in diag.steps]
+    states = [headline_state(s.headline) for s in diag.steps]
     if diag.unexplained is not None:
         for st in diag.unexplained.steps:
             names.append(f"+ {st.added}")
             errors.append(st.headline.error_pct)
             noise.append(st.headline.noise_pct)
-            within.append(st.headline.within_noise)
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.4))
+            states.append(headline_state(st.headline))
+    fig, (ax, *after) = plt.subplots(1, 3, figsize=(17, 4.4))
     # the step names slant at 20 degrees below the bars
-    fig.subplots_adjust(left=0.08, right=0.985, top=0.92, wspace=0.2,
+    fig.subplots_adjust(left=0.06, right=0.99, top=0.92, wspace=0.25,
                         bottom=min(0.45, (0.2 + np.sin(np.radians(20)) * _margin_in(names, 8, 0.1)) / 4.4))
     x = np.arange(len(names))
-    ax.bar(x, errors, color=["tab:green" if w else "tab:red" for w in within])
+    ax.bar(x, errors, color=[plot_colour(st) for st in states])
     ax.plot(x, noise, "k_", ms=30, mew=2, label="sampling noise alone")
     ax.set_yscale("log")
+    label_log_axis(ax.yaxis)
     ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
     ax.set_ylabel("headline error [%]")
-    ax.set_title("The path: green = every statistic within noise")
+    ax.set_title("The path: green within noise, red beyond, grey not judged", fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
     fits = [(diag.model_fit, diag.model_headline, "tab:red"), (diag.catalogue_fit, diag.catalogue_headline, "tab:orange"),
             (diag.final_fit, diag.final_headline, "tab:green")]
-    seen = set()
-    for fit, head, color in fits:
-        by_range = head.consistency.find("sigma", "range") if head.consistency is not None else None
-        if fit.model.name in seen or by_range is None:
-            continue
-        seen.add(fit.model.name)
-        # sigma by range as the headline's checks measured it: no second pass over the pixels
-        log_ratio = np.log(by_range.measured / by_range.predicted)
-        ax2.errorbar(by_range.center, 100 * log_ratio, yerr=200 * by_range.se / by_range.measured, fmt="o-", ms=4,
-                     capsize=2, color=color, label=fit.model.name)
-    ax2.axhline(0, color="k", lw=0.8)
-    ax2.set_xlabel("Z [m]")
-    ax2.set_ylabel("ln(σ measured / σ model) [%]")
-    ax2.set_title(f"headline error {diag.model_headline.error_pct:.2f} % → {diag.final_headline.error_pct:.2f} %")
-    ax2.legend(fontsize=7)
-    ax2.grid(alpha=0.3)
+    # where the error went: sigma's residual by range and by radius (a radial effect's start and final curves
+    # overlap by range, its error being spread over every range), as the headline's checks measured them
+    for ax2, covariate, xlabel in zip(after, ("range", "radius"), ("Z [m]", "ρ = radius / f [1]")):
+        seen = set()
+        for fit, head, color in fits:
+            check = head.consistency.find("sigma", covariate) if head.consistency is not None else None
+            if fit.model.name in seen or check is None:
+                continue
+            seen.add(fit.model.name)
+            log_ratio = np.log(check.measured / check.predicted)
+            ax2.errorbar(check.center, 100 * log_ratio, yerr=200 * check.se / check.measured, fmt="o-", ms=4,
+                         capsize=2, color=color, label=fit.model.name)
+        ax2.axhline(0, color="k", lw=0.8)
+        ax2.set_xlabel(xlabel)
+        ax2.set_ylabel("ln(σ measured / σ model) [%]")
+        ax2.set_title(f"by {covariate}: headline error {diag.model_headline.error_pct:.2f} % → "
+                      f"{diag.final_headline.error_pct:.2f} %", fontsize=10)
+        if seen:
+            ax2.legend(fontsize=7)
+        ax2.grid(alpha=0.3)
     save_figure(fig, path, dpi=100)
     plt.close(fig)

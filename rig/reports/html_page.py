@@ -9,14 +9,16 @@ import html
 from pathlib import Path
 
 from .run_info import RunInfo
+from .verdict_state import COLOURS
 
 STYLE = """
 body { font-family: system-ui, sans-serif; max-width: 1200px; margin: 2em auto; padding: 0 1em; color: #222; }
-h1 { font-size: 1.4em; } .summary { font-size: 1.15em; background: #eef6ee; padding: 0.8em; border-left: 4px solid #3a3; }
-table { border-collapse: collapse; } td, th { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
+h1 { font-size: 1.4em; } .summary { font-size: 1.15em; padding: 0.8em; border-left: 4px solid; }
+table { border-collapse: collapse; display: block; max-width: 100%; overflow-x: auto; } td, th { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
 tr.sig td { background: #f4f8ff; } table.run th { font-weight: normal; color: #555; } img { max-width: 100%; }
-pre { background: #f6f6f6; padding: 1em; overflow-x: auto; }
-"""
+pre { background: #f6f6f6; padding: 1em; white-space: pre-wrap; overflow-wrap: anywhere; }
+""" + "".join(f".verdict-{state} {{ background: {bg}; border-color: {border}; }}\n"
+              for state, (bg, border, _) in COLOURS.items())
 
 
 def page(title: str, body: str) -> str:
@@ -48,3 +50,8 @@ def table(header: list[str], rows: list[list[str]], marked: list[bool] | None = 
     body = "".join(f"<tr class='{'sig' if marked and marked[i] else ''}'>" + "".join(f"<td>{html.escape(c)}</td>" for c in r)
                    + "</tr>" for i, r in enumerate(rows))
     return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def summary(text: str, state: str) -> str:
+    """A verdict in a box coloured by its `state` (rig.reports.verdict_state): green only within noise."""
+    return f'<p class="summary verdict-{state}" data-state="{state}">{html.escape(text)}</p>'

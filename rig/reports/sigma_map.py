@@ -40,6 +40,22 @@ def parse_ranges(text: str) -> list[float]:
     return z
 
 
+#: a map whose spread (max - min) is below this fraction of its mean is written as one value, not drawn: a colour
+#: bar over less than 0.1 % shows float rounding, or a model with no term over the image, as a +-10 % pattern
+CONSTANT_SPREAD = 1e-3
+
+
+def is_constant(image_m) -> bool:
+    """Whether a sigma map (m) is constant over the image within `CONSTANT_SPREAD` of its mean."""
+    finite = np.asarray(image_m)[np.isfinite(image_m)]
+    return finite.size > 0 and np.ptp(finite) <= CONSTANT_SPREAD * abs(float(finite.mean()))
+
+
+def constant_text(image_m) -> str:
+    """A constant map's value in mm, with the spread it is constant within."""
+    return f"{1e3 * float(np.nanmean(image_m)):.4g} mm (spread below {100 * CONSTANT_SPREAD:g} %)"
+
+
 def map_problem(inputs: tuple[str, ...] | list[str]) -> str | None:
     """Why a model whose terms need `inputs` (`NoiseModel.inputs`) has no sigma map, or None."""
     missing = [n for n in inputs if n not in MAP_INPUTS]
@@ -88,10 +104,17 @@ def write_sigma_maps(model: NoiseModel, ranges_m: list[float], out_stem: Path) -
                          metadata=tiff_metadata(model, ranges_m))
     fig, axes = plt.subplots(1, len(ranges_m), figsize=(4.2 * len(ranges_m), 3.2), squeeze=False)
     for ax, z, image in zip(axes[0], ranges_m, maps):
-        shown = ax.imshow(image * 1e3, cmap="viridis", origin="upper")
         ax.set_title(f"Z = {z:g} m")
         ax.set_xlabel("u (px)")
         ax.set_ylabel("v (px)")
+        if is_constant(image):  # a colour bar would stretch rounding over the whole scale
+            ax.set_xlim(0, image.shape[1])
+            ax.set_ylim(image.shape[0], 0)
+            ax.set_aspect("equal")  # the image's shape, as imshow draws it
+            ax.text(0.5, 0.5, f"constant over the image:\n{constant_text(image)}", transform=ax.transAxes,
+                    ha="center", va="center", fontsize=11)
+            continue
+        shown = ax.imshow(image * 1e3, cmap="viridis", origin="upper")
         fig.colorbar(shown, ax=ax, label="sigma (mm)", shrink=0.85)
     fig.suptitle(f"{model.doc['model']}: sigma of a depth sample, a wall perpendicular to the axis", fontsize=10)
     fig.tight_layout()

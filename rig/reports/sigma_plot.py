@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
-import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -14,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from ..diagnosis.bins import BinnedSigma  # noqa: E402
 from ..models import ModelFit  # noqa: E402
+from .log_ticks import label_log_axis  # noqa: E402
 from .output_file import save_figure  # noqa: E402
 
 
@@ -83,8 +83,7 @@ def finish_sigma_figure(fig, axes, path: str | Path, title: str, legend_size: in
             ax.set_xscale("log")
             ax.set_yscale("log")
             for axis in (ax.xaxis, ax.yaxis):
-                axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-                axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+                label_log_axis(axis)
             ax.set_title("log-log: slope = λ")
         else:
             ax.set_title(title)
