@@ -34,9 +34,11 @@ STAMP = VENV / ".rig-installed"
 
 #: system packages (Debian names) and how to tell they are there: libusb for pyrealsense2,
 #: tmux for the test that drives `rig tui` in a real terminal, strace for the tests that fill the disk at one
-#: system call (tests/test_disk_full.py: ENOSPC injected by the kernel)
+#: system call (tests/test_disk_full.py: ENOSPC injected by the kernel), chromium for the test that looks at a report
+#: as a browser lays it out (tests/test_report_pictures.py)
 SYSTEM_PACKAGES = {"libusb-1.0-0": lambda: _has_library("libusb-1.0.so.0"), "tmux": lambda: shutil.which("tmux") is not None,
-                   "strace": lambda: shutil.which("strace") is not None}
+                   "strace": lambda: shutil.which("strace") is not None,
+                   "chromium": lambda: shutil.which("chromium") is not None}
 
 
 def _has_library(name: str) -> bool:
