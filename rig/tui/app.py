@@ -297,6 +297,13 @@ class RigApp(App):
         super()._handle_exception(error)
 
     def on_run_pane_finished(self, m: RunPane.Finished) -> None:
-        if m.state.status in ("done", "aborted") and Path(m.state.output).exists() and not self.results.busy:
-            self.results.set_path(m.state.output)
+        """What just happened is the new recording: the Results screen drops the previous one's results (its effect
+        list would take the next enter) and diagnoses a finished run at once (an aborted one opens on enter)."""
+        s = m.state
+        if s.status in ("done", "aborted") and Path(s.output).exists() and not self.results.busy:
+            self.results.show_recording(s.output, open_now=s.status == "done")
+            if s.status == "done":
+                self.run_pane.status.show(f"{s.message}; its results: screen 4", "ok")
+            if self.tab == "results":
+                self._focus_for("results")
         self.refresh_bindings()

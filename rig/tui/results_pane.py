@@ -9,6 +9,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.message import Message
 from textual.widgets import Input, Label, Static
+from textual.worker import get_current_worker
 
 from protocols.recording import RecordingError
 
@@ -16,6 +17,10 @@ from rig.models.fitting.progress import WorkProgress
 
 from .results_service import ProgressText, ResultsSession
 from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine
+
+
+class Cancelled(Exception):
+    """The work was cancelled (the app is going down): it stops at its next step."""
 
 
 class ResultsPane(Vertical):
@@ -81,6 +86,21 @@ class ResultsPane(Vertical):
     def set_path(self, path: str) -> None:
         self.query_one("#recording-path", Input).value = path
 
+    def show_recording(self, path: str, *, open_now: bool) -> None:
+        """A recording that just came (a run's): the previous one's results go from the screen, so that nothing
+        shown, and no key, is about another file; with `open_now`, it is diagnosed at once."""
+        self.session = ResultsSession()
+        for table in (self.query_one(FitTable), self.query_one(BinTable), self.query_one(EffectList)):
+            table.show_rows([])
+        self.query_one(HeadlineChart).show_history([])
+        self.query_one("#summary", Static).update("")
+        self.query_one(ShapePlot).show_shape(None)
+        self.set_path(path)
+        if open_now:
+            self.open()
+        else:
+            self.status.show(f"{path} was just recorded: enter (or ctrl+o) opens it", "info")
+
     # -- actions ----------------------------------------------------------------------------
     def open(self) -> None:
         if not self.path:
@@ -113,7 +133,11 @@ class ResultsPane(Vertical):
     def _work(self, what: str, path: str, effects: list[str], effects_file: str) -> None:
         words = ProgressText(f"diagnosing {path}" if what == "open" else "refitting", self.clock)
 
+        worker = get_current_worker()
+
         def progress(p: WorkProgress) -> None:
+            if worker.is_cancelled:
+                raise Cancelled  # (ctrl+q waits for this thread: a diagnosis stops at its next step, not its end)
             if not p.finished:
                 self.post_message(self.Progress(words.text(p)))
 
@@ -122,6 +146,8 @@ class ResultsPane(Vertical):
                 self.session.open(path, effects_file, progress=progress)
             else:
                 self.session.refit(effects, progress=progress)
+        except Cancelled:
+            return
         except (RecordingError, ValueError, OSError) as e:
             self.post_message(self.Done(what, error=str(e)))
             return

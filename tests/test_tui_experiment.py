@@ -1,0 +1,67 @@
+"""`rig tui` does the whole job (issue 51): one experiment driven from the keyboard, from the devices through the
+run to its results and what leaves the TUI. The real app, runner, recording and analysis, driven by Textual's pilot,
+on the simulated camera at 16x9 px with a few frames a stop, so that the whole of it costs a few seconds of CPU."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[test])")
+
+from rig.tui.app import RigApp  # noqa: E402
+from rig.tui.widgets import EffectList  # noqa: E402
+from simrig import record_perpendicular  # noqa: E402
+from tui_pilot import run, type_into, until  # noqa: E402
+
+CAMERA = "fake:width=16,depth_unit_mm=0.05"
+
+
+@pytest.fixture(scope="module")
+def earlier(tmp_path_factory) -> Path:
+    """A recording made before the experiment: the one the Results screen shows when the run starts."""
+    path, _, _ = record_perpendicular(tmp_path_factory.mktemp("earlier") / "earlier.h5", width=16, frames=5,
+                                      stops_m=[0.5, 1.0, 1.5], seed=7)
+    return path
+
+
+def diagnosed(app) -> bool:
+    return app.results.session.diagnosis is not None and not app.results.busy
+
+
+def test_a_whole_experiment_from_the_keyboard(tmp_path, monkeypatch, earlier):
+    monkeypatch.chdir(tmp_path)
+
+    async def go():
+        app = RigApp(CAMERA, "fake:", recording=str(earlier))
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: diagnosed(app) and app.devices.session.connected, "the earlier recording")
+            effects = app.query_one(EffectList)
+            assert app.focused is effects and effects.option_count > 0  # enter would tick the earlier one's effect
+
+            # the experiment, set up and run from the keyboard
+            await pilot.press("f2")
+            await type_into(pilot, "stops", "0.5, 1.0, 1.5")
+            await type_into(pilot, "frames", "4")
+            await type_into(pilot, "output", "new.h5")
+            await pilot.press("ctrl+r")
+            assert app.tab == "run"
+            await until(pilot, lambda: app.run_pane.state.status == "done", "the run")
+            assert "its results: screen 4" in app.run_pane.status.text
+
+            # what just happened has the focus: the new recording, never the earlier one's effects
+            assert app.results.session.path in (None, Path("new.h5"))
+            assert app.results.session.path is not None or effects.option_count == 0
+            await pilot.press("4")
+            assert app.focused is effects if diagnosed(app) else app.focused.id == "recording-path"
+            await until(pilot, lambda: diagnosed(app), "the new recording's diagnosis")
+            assert app.results.session.path == Path("new.h5") and app.results.path == "new.h5"
+            assert app.focused is effects
+            shown = [effects.get_option_at_index(i).value for i in range(effects.option_count)]
+            assert shown == [r.effect for r in app.results.session.candidate_rows()]
+            assert "new.h5: headline error" in app.results.status.text
+
+    run(go())
