@@ -12,7 +12,11 @@ pytestmark = pytest.mark.slow
 
 pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[test])")
 
+from protocols.recording import Recording  # noqa: E402
 from rig.tui.app import RigApp  # noqa: E402
+from rig.tui.dialogs import ConfirmQuit  # noqa: E402
+from rig.tui.form import ExperimentSettings  # noqa: E402
+from rig.tui.launch import run_app  # noqa: E402
 from rig.tui.widgets import EffectList  # noqa: E402
 from simrig import record_perpendicular  # noqa: E402
 from tui_pilot import run, type_into, until  # noqa: E402
@@ -65,3 +69,35 @@ def test_a_whole_experiment_from_the_keyboard(tmp_path, monkeypatch, earlier):
             assert "new.h5: headline error" in app.results.status.text
 
     run(go())
+
+
+def test_quitting_during_a_run_asks_first_then_aborts_keeping_the_completed_stops(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    settings = ExperimentSettings(values=dict(stops_m=[0.5, 1.0, 1.5], frames_per_stop=4), output="run.h5")
+    app = RigApp(CAMERA, "fake:", experiment=settings, connect=False)
+    seen: dict[str, object] = {}
+
+    async def operator(pilot):
+        live = app.run_pane.live
+        seen["pane"] = app.run_pane
+        # pause from the run's own thread as soon as the first stop is done: no race with the clock
+        live.observers.append(lambda e: live.pause() if e.kind == "stop_done" and e.stop_index == 0 else None)
+        await pilot.press("3", "r")
+        await until(pilot, lambda: app.run_pane.state.status == "paused", "the pause")
+        await pilot.press("ctrl+q")
+        assert isinstance(app.screen, ConfirmQuit) and app.is_running
+        seen["question"] = str(app.screen.query_one("#question").render())
+        await pilot.press("a", "p", "1", "q")  # the screens' keys do not reach past the question
+        assert isinstance(app.screen, ConfirmQuit) and app.run_pane.state.status == "paused" and app.tab == "run"
+        await pilot.press("n")  # back to the run, as it was
+        assert not isinstance(app.screen, ConfirmQuit) and app.run_pane.state.status == "paused"
+        await pilot.press("ctrl+q", "y")
+        await until(pilot, lambda: app.return_code is not None, "the app to end")
+
+    code = run_app(app, headless=True, size=(80, 24), auto_pilot=operator)
+    assert code == 0 and app.crash is None
+    assert seen["question"].startswith("A run is going on: stop 2 of 3, recording run.h5. Quit?")
+    assert "its completed stops (1 of 3) stay in run.h5" in seen["question"]
+    assert seen["pane"].state.status == "aborted"
+    with Recording(tmp_path / "run.h5") as rec:
+        assert rec.stop_labels() == ["0.500m"]

@@ -21,6 +21,7 @@ from textual.widgets import Checkbox, Footer, Input, Select, TabbedContent, TabP
 from drivers.camera import CameraSettings
 
 from .devices_pane import DevicesPane
+from .dialogs import ConfirmQuit
 from .experiment_pane import ExperimentPane
 from .form import DEFAULT_CAMERA, DEFAULT_STAGE, ExperimentSettings
 from .live import Clock
@@ -90,6 +91,7 @@ class RigApp(App):
         self._connect = connect
         self._clock = clock
         self.crash: BaseException | None = None  # what ended the app, if something did (`launch.run_app`)
+        self._quitting = False  # quitting was confirmed during a run: the app ends when the run's thread does
 
     def compose(self) -> ComposeResult:
         with TabbedContent(initial="results" if self._recording else "devices", id="tabs"):
@@ -257,9 +259,27 @@ class RigApp(App):
         self.results.refit()
 
     async def action_quit(self) -> None:
-        if self.run_pane.running:
-            self.run_pane.live.abort()  # completed stops stay in the file; the run's thread ends at the next frame
-        self.exit()
+        """Quit; during a run, only once the operator confirms (`ConfirmQuit`): the run is then aborted, keeping its
+        completed stops, and the app ends when the run's thread has closed the file."""
+        if not self.run_pane.running:
+            self.exit()
+        elif isinstance(self.screen, ConfirmQuit):  # ctrl+q twice
+            self.screen.dismiss(True)
+        elif not self._quitting:
+            s = self.run_pane.state
+            self.push_screen(ConfirmQuit(
+                f"A run is going on: stop {s.stops_done + 1} of {s.n_stops}, recording {s.output}. Quit? The run is "
+                f"aborted after the current frame; its completed stops ({s.stops_done} of {s.n_stops}) stay in {s.output} "
+                "(u on the Run screen records the rest later)."), self._quit_answered)
+
+    def _quit_answered(self, quit: bool | None) -> None:
+        if not quit:
+            return
+        if not self.run_pane.running:  # it ended while the question was up
+            self.exit()
+            return
+        self._quitting = True
+        self.run_pane.abort()
 
     # -- glue -------------------------------------------------------------------------------
     def _output(self) -> str:
@@ -300,6 +320,9 @@ class RigApp(App):
         """What just happened is the new recording: the Results screen drops the previous one's results (its effect
         list would take the next enter) and diagnoses a finished run at once (an aborted one opens on enter)."""
         s = m.state
+        if self._quitting:
+            self.exit()
+            return
         if s.status in ("done", "aborted") and Path(s.output).exists() and not self.results.busy:
             self.results.show_recording(s.output, open_now=s.status == "done")
             if s.status == "done":
