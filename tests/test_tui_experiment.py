@@ -4,6 +4,7 @@ on the simulated camera at 16x9 px with a few frames a stop, so that the whole o
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -14,14 +15,15 @@ pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[t
 
 from protocols.recording import Recording  # noqa: E402
 from rig.tui.app import RigApp  # noqa: E402
-from rig.tui.dialogs import ConfirmQuit  # noqa: E402
+from rig.tui.dialogs import ConfirmQuit, HelpScreen  # noqa: E402
 from rig.tui.form import ExperimentSettings  # noqa: E402
 from rig.tui.launch import run_app  # noqa: E402
 from rig.tui.widgets import EffectList  # noqa: E402
 from simrig import record_perpendicular  # noqa: E402
-from tui_pilot import run, type_into, until  # noqa: E402
+from tui_pilot import run, screen_text, type_into, until  # noqa: E402
 
 CAMERA = "fake:width=16,depth_unit_mm=0.05"
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "tui.md"
 
 
 @pytest.fixture(scope="module")
@@ -101,3 +103,59 @@ def test_quitting_during_a_run_asks_first_then_aborts_keeping_the_completed_stop
     assert seen["pane"].state.status == "aborted"
     with Recording(tmp_path / "run.h5") as rec:
         assert rec.stop_labels() == ["0.500m"]
+
+
+def docs_key_table() -> dict[str, set[str]]:
+    """docs/tui.md's table of keys: the first key of each row (`c` in "`c` (or `enter` in a device field)"), by screen."""
+    keys: dict[str, set[str]] = {}
+    screen = ""
+    for line in DOCS.read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[1].startswith("`"):
+            screen = cells[0].lower() or screen
+            keys.setdefault(screen, set()).add(re.match(r"`([^`]+)`", cells[1]).group(1))
+    return keys
+
+
+def test_the_help_lists_the_keys_as_bound_and_the_manual_lists_the_same():
+    from textual.binding import BindingsMap
+    from textual.keys import format_key
+
+    async def go():
+        app = RigApp(CAMERA, "fake:", connect=False)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("question_mark")
+            help_screen = app.screen
+            assert isinstance(help_screen, HelpScreen)
+            shown = screen_text(app)
+            await pilot.press("c")  # the screens' keys do not reach past the help
+            assert app.screen is help_screen and not app.devices.busy
+            await pilot.press("escape")
+            assert not isinstance(app.screen, HelpScreen)
+            app.query_one("#camera-string").focus()
+            await pilot.press("question_mark")  # in a text field, ? is typed
+            assert not isinstance(app.screen, HelpScreen) and app.devices.camera_string.endswith("?")
+            return help_screen.rows, shown
+
+    rows, shown = run(go())
+    said = {(r.group, k): r.does for r in rows for k in r.keys}
+    for key, b in BindingsMap(RigApp.BINDINGS):  # every key the app binds, with what it does, as Textual reads them
+        where = next(g for g, k in said if k == format_key(key))
+        assert b.description in said[(where, format_key(key))]
+    assert said[("everywhere", "f1")] == "Devices screen" and ("everywhere", "1") in said
+    assert said[("run", "p")] == "Pause / Continue" and said[("results: effect list", "space")] == "Add/remove effect"
+    assert "c*" in shown and "ctrl+l " in shown and "Pause / Continue" in shown  # on the screen, not only in the widget
+    # the manual's table and the bindings: the same keys on each screen
+    table = docs_key_table()
+    bound = {}
+    for r in rows:
+        screen = r.group.split(":")[0]
+        if screen in table:
+            bound.setdefault(screen, set()).update(r.keys)
+    for screen, keys in table.items():
+        assert keys <= bound[screen], (screen, keys - bound[screen])
+    for screen, keys in bound.items():
+        in_docs = [k for row in rows if row.group.split(":")[0] == screen for k in row.keys[:1]]
+        assert set(in_docs) <= table[screen], (screen, set(in_docs) - table[screen])
+    text = DOCS.read_text()
+    assert all(f"`{k}`" in text for k in ("?", "esc", "ctrl+q"))

@@ -21,12 +21,14 @@ from textual.widgets import Checkbox, Footer, Input, Select, TabbedContent, TabP
 from drivers.camera import CameraSettings
 
 from .devices_pane import DevicesPane
-from .dialogs import ConfirmQuit
+from .dialogs import ConfirmQuit, HelpScreen
+from .key_list import KeyRow, action_name, bindings_of, key_rows
 from .experiment_pane import ExperimentPane
 from .form import DEFAULT_CAMERA, DEFAULT_STAGE, ExperimentSettings
 from .live import Clock
 from .results_pane import ResultsPane
 from .run_pane import RunPane
+from .widgets import EffectList
 
 TABS = ("devices", "experiment", "run", "results")
 
@@ -54,14 +56,14 @@ class RigApp(App):
     #: screen, and focusing it would switch to that screen
     AUTO_FOCUS = None
     BINDINGS = [
-        Binding("f1", "show_tab('devices')", "Devices", show=False),
-        Binding("f2", "show_tab('experiment')", "Experiment", show=False),
-        Binding("f3", "show_tab('run')", "Run", show=False),
-        Binding("f4", "show_tab('results')", "Results", show=False),
-        Binding("1", "digit_tab('devices')", "Devices", show=False),
-        Binding("2", "digit_tab('experiment')", "Experiment", show=False),
-        Binding("3", "digit_tab('run')", "Run", show=False),
-        Binding("4", "digit_tab('results')", "Results", show=False),
+        Binding("f1", "show_tab('devices')", "Devices screen", show=False),
+        Binding("f2", "show_tab('experiment')", "Experiment screen", show=False),
+        Binding("f3", "show_tab('run')", "Run screen", show=False),
+        Binding("f4", "show_tab('results')", "Results screen", show=False),
+        Binding("1", "digit_tab('devices')", "Devices screen", show=False),
+        Binding("2", "digit_tab('experiment')", "Experiment screen", show=False),
+        Binding("3", "digit_tab('run')", "Run screen", show=False),
+        Binding("4", "digit_tab('results')", "Results screen", show=False),
         Binding("c", "connect", "Connect"),
         Binding("x", "disconnect", "Disconnect"),
         Binding("t", "test_capture", "Test capture"),
@@ -77,6 +79,7 @@ class RigApp(App):
         Binding("ctrl+o", "open_recording", "Open"),  # a diagnosis (a minute): not a letter a file name contains
         Binding("f", "refit", "Refit"),
         Binding("escape", "leave_field", "Leave field"),
+        Binding("question_mark", "help", "Help"),
         Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
@@ -251,6 +254,17 @@ class RigApp(App):
 
     def action_abort(self) -> None:
         self.run_pane.abort()
+
+    def action_help(self) -> None:
+        if not isinstance(self.screen, HelpScreen):
+            self.push_screen(HelpScreen(self.key_help()))
+
+    def key_help(self) -> list[KeyRow]:
+        """Every key the app and its own widgets bind, by where it works (`ACTION_TAB`): what `?` shows."""
+        bound = [(ACTION_TAB.get(action_name(b), "everywhere"), b) for b in bindings_of(type(self))]
+        bound += [(f"{where}", b) for where, cls in (("results: effect list", EffectList), ("quit question", ConfirmQuit),
+                                                      ("this help", HelpScreen)) for b in bindings_of(cls)]
+        return key_rows(bound, frozenset(LETTER_ACTIONS | {"help"}))  # (a text field takes ? too; a list does not)
 
     def action_open_recording(self) -> None:
         self.results.open()

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from rich.table import Table
+from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
-from textual.containers import Vertical
+from textual.containers import Vertical, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Static
+
+from .key_list import KeyRow
 
 
 class ConfirmQuit(ModalScreen[bool]):
@@ -25,3 +29,39 @@ class ConfirmQuit(ModalScreen[bool]):
 
     def action_answer(self, yes: bool) -> None:
         self.dismiss(yes)
+
+
+class HelpScreen(ModalScreen[None]):
+    """The keys, as `key_list.key_rows` makes them from the bindings, by where they work."""
+
+    BINDINGS = [Binding("escape,question_mark,q", "close", "Close this help")]
+
+    def __init__(self, rows: list[KeyRow]) -> None:
+        super().__init__()
+        self.rows = rows
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll(classes="dialog", id="help"):
+            yield Static(self.table(), id="help-keys")
+            yield Static("* not while a text field has the focus (it takes the key; esc leaves it). esc, ? or q closes "
+                         "this help; up and down scroll it", classes="dialog-keys", markup=False)
+
+    def table(self) -> Table:
+        t = Table.grid(padding=(0, 2))
+        t.add_column(no_wrap=True, style="bold")
+        t.add_column()
+        group = None
+        for r in self.rows:
+            if r.group != group:
+                group = r.group
+                t.add_row(Text(group.capitalize(), style="underline"), "")
+            t.add_row(r.keys_text(), r.does)
+        return t
+
+    @property
+    def plain(self) -> str:
+        """The help as text: a line a row, "group: keys: what they do"."""
+        return "\n".join(f"{r.group}: {r.keys_text()}: {r.does}" for r in self.rows)
+
+    def action_close(self) -> None:
+        self.dismiss(None)
