@@ -4,7 +4,10 @@ on the simulated camera at 16x9 px with a few frames a stop, so that the whole o
 
 from __future__ import annotations
 
+import json
 import re
+import webbrowser
+from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
@@ -14,8 +17,9 @@ pytestmark = pytest.mark.slow
 pytest.importorskip("textual", reason="rig tui needs textual (pip install -e .[test])")
 
 from protocols.recording import Recording  # noqa: E402
-from rig.tui.app import RigApp  # noqa: E402
-from rig.tui.dialogs import ConfirmQuit, HelpScreen  # noqa: E402
+from rig.tui.app import ACTION_TAB, RigApp  # noqa: E402
+from cli_in_process import rig_in_process  # noqa: E402
+from rig.tui.dialogs import AskPath, ConfirmQuit, HelpScreen, TextScreen  # noqa: E402
 from rig.tui.form import ExperimentSettings  # noqa: E402
 from rig.tui.launch import run_app  # noqa: E402
 from rig.tui.widgets import EffectList  # noqa: E402
@@ -69,8 +73,77 @@ def test_a_whole_experiment_from_the_keyboard(tmp_path, monkeypatch, earlier):
             shown = [effects.get_option_at_index(i).value for i in range(effects.option_count)]
             assert shown == [r.effect for r in app.results.session.candidate_rows()]
             assert "new.h5: headline error" in app.results.status.text
+            status = app.results.status
+            model = app.results.session.fit.model.name
 
-    run(go())
+            # export: the model on the screen, where and as `rig export` writes it
+            await pilot.press("e")
+            await until(pilot, lambda: not app.results.busy, "the export")
+            assert status.text.startswith(f"model: new-noise-model.json ({model}; sigma valid for Z 0.")
+            await pilot.press("e")  # the file is there: asked, not overwritten
+            assert status.text == "new-noise-model.json exists: e again replaces it"
+
+            # compare with the recording opened before, as `rig compare` compares
+            await pilot.press("c")
+            assert isinstance(app.screen, AskPath) and app.screen.query_one("#asked-path").value == str(earlier)
+            await pilot.press("enter")
+            await until(pilot, lambda: isinstance(app.screen, TextScreen), "the comparison")
+            compared = app.screen.text
+            await pilot.press("escape")
+            assert status.text.startswith("new.h5 against earlier.h5: ")
+            await pilot.press("c", "home", "ctrl+k", *"new.h5", "enter")  # itself: one line, nothing fitted
+            await until(pilot, lambda: not app.results.busy, "the refusal")
+            assert status.text == "new.h5 is the recording on the screen; give another to compare it with"
+
+            # the report, and no browser where there is no display
+            monkeypatch.delenv("DISPLAY", raising=False)
+            monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+            await pilot.press("w")
+            await until(pilot, lambda: not app.results.busy, "the report")
+            assert status.text == f"report: {Path('new-report', 'fit.html')}; no display here: open it where there is one"
+            assert not app.check_action("open_report", ())  # not offered: a console browser would take the terminal
+            await pilot.press("b")
+            assert status.text.startswith("report: ")
+            # with a display, b opens it in the browser webbrowser finds ($BROWSER here: a command that notes the URL)
+            monkeypatch.setenv("DISPLAY", ":99")
+            monkeypatch.setenv("BROWSER", f"sh -c 'echo \"$0\" > {tmp_path / 'opened.txt'}' %s")
+            monkeypatch.setattr(webbrowser, "_tryorder", None)  # (webbrowser reads $BROWSER again)
+            app.refresh_bindings()
+            await pilot.press("b")
+            await until(pilot, lambda: (tmp_path / "opened.txt").exists(), "the browser")
+            await until(pilot, lambda: status.text.startswith("opened "), "the status")
+            return model, compared
+
+    model, compared = run(go())
+    # the file is rig export's, to the byte but for the time it was made, and of the published schema
+    import jsonschema
+
+    cli = rig_in_process("export", "new.h5", "--model", model, "-o", "by-rig-export.json")
+    assert cli.returncode == 0, cli.stderr
+    ours, theirs = (json.loads((tmp_path / f).read_text()) for f in ("new-noise-model.json", "by-rig-export.json"))
+    jsonschema.validate(ours, json.loads((DOCS.parent / "noise-model.schema.json").read_text()))
+    assert ours.pop("created_utc") and theirs.pop("created_utc")
+    assert ours == theirs
+    # the comparison is rig compare's text: both recordings, their set-up and a verdict on the pair
+    assert compared.count("new.h5") >= 2 and "earlier.h5" in compared and "verdict: new.h5 against earlier.h5" in compared
+    # the report: a page an HTML parser reads, naming the recording and the model, its plot beside it
+    page = (tmp_path / "new-report" / "fit.html").read_text()
+    words = Words()
+    words.feed(page)
+    assert "Range-error fit: new.h5" in words.text and f"{model}: headline error" in words.text
+    assert (tmp_path / "new-report" / "fit-sigma.png").stat().st_size > 1000
+    assert (tmp_path / "opened.txt").read_text().strip() == (tmp_path / "new-report" / "fit.html").as_uri()
+
+
+class Words(HTMLParser):
+    """The text of a page, as the standard library's parser reads it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.text = ""
+
+    def handle_data(self, data: str) -> None:
+        self.text += data
 
 
 def test_quitting_during_a_run_asks_first_then_aborts_keeping_the_completed_stops(tmp_path, monkeypatch):
@@ -140,10 +213,10 @@ def test_the_help_lists_the_keys_as_bound_and_the_manual_lists_the_same():
     rows, shown = run(go())
     said = {(r.group, k): r.does for r in rows for k in r.keys}
     for key, b in BindingsMap(RigApp.BINDINGS):  # every key the app binds, with what it does, as Textual reads them
-        where = next(g for g, k in said if k == format_key(key))
+        where = ACTION_TAB.get(b.action.split("(")[0], "everywhere")
         assert b.description in said[(where, format_key(key))]
     assert said[("everywhere", "f1")] == "Devices screen" and ("everywhere", "1") in said
-    assert said[("run", "p")] == "Pause / Continue" and said[("results: effect list", "space")] == "Add/remove effect"
+    assert said[("run", "p")] == "Pause / Continue" and said[("results: effect list", "space")] == "Tick effect"
     assert "c*" in shown and "ctrl+l " in shown and "Pause / Continue" in shown  # on the screen, not only in the widget
     # the manual's table and the bindings: the same keys on each screen
     table = docs_key_table()
@@ -155,7 +228,7 @@ def test_the_help_lists_the_keys_as_bound_and_the_manual_lists_the_same():
     for screen, keys in table.items():
         assert keys <= bound[screen], (screen, keys - bound[screen])
     for screen, keys in bound.items():
-        in_docs = [k for row in rows if row.group.split(":")[0] == screen for k in row.keys[:1]]
+        in_docs = [k for row in rows if row.group in (screen, f"{screen}: effect list") for k in row.keys[:1]]
         assert set(in_docs) <= table[screen], (screen, set(in_docs) - table[screen])
     text = DOCS.read_text()
     assert all(f"`{k}`" in text for k in ("?", "esc", "ctrl+q"))

@@ -21,11 +21,12 @@ from textual.widgets import Checkbox, Footer, Input, Select, TabbedContent, TabP
 from drivers.camera import CameraSettings
 
 from .devices_pane import DevicesPane
-from .dialogs import ConfirmQuit, HelpScreen
+from .dialogs import AskPath, ConfirmQuit, HelpScreen, TextScreen
 from .key_list import KeyRow, action_name, bindings_of, key_rows
 from .experiment_pane import ExperimentPane
 from .form import DEFAULT_CAMERA, DEFAULT_STAGE, ExperimentSettings
 from .live import Clock
+from .results_outputs import display_available
 from .results_pane import ResultsPane
 from .run_pane import RunPane
 from .widgets import EffectList
@@ -37,11 +38,12 @@ ACTION_TAB = {
     "connect": "devices", "disconnect": "devices", "test_capture": "devices", "home": "devices",
     "load_experiment": "experiment", "save_experiment": "experiment", "run_from_form": "experiment",
     "start_run": "run", "pause": "run", "unpause": "run", "abort": "run", "resume_run": "run",
-    "open_recording": "results", "refit": "results",
+    "open_recording": "results", "refit": "results", "export_model": "results", "compare": "results",
+    "write_report": "results", "open_report": "results",
 }
 #: actions on plain letter and digit keys: off while a form field has the focus (the field takes the key)
 LETTER_ACTIONS = {"connect", "disconnect", "test_capture", "home", "start_run", "pause", "unpause", "abort",
-                  "resume_run", "refit", "digit_tab"}
+                  "resume_run", "refit", "export_model", "compare", "write_report", "open_report", "digit_tab"}
 #: the widgets of a form: while one has the focus, keys are for it
 FORM_FIELDS = (Input, Select, Checkbox)
 
@@ -64,6 +66,7 @@ class RigApp(App):
         Binding("2", "digit_tab('experiment')", "Experiment screen", show=False),
         Binding("3", "digit_tab('run')", "Run screen", show=False),
         Binding("4", "digit_tab('results')", "Results screen", show=False),
+        Binding("question_mark", "help", "Help"),  # (early: the footer keeps it when it has no room for all)
         Binding("c", "connect", "Connect"),
         Binding("x", "disconnect", "Disconnect"),
         Binding("t", "test_capture", "Test capture"),
@@ -78,8 +81,11 @@ class RigApp(App):
         Binding("u", "resume_run", "Resume file"),
         Binding("ctrl+o", "open_recording", "Open"),  # a diagnosis (a minute): not a letter a file name contains
         Binding("f", "refit", "Refit"),
+        Binding("e", "export_model", "Export"),
+        Binding("c", "compare", "Compare"),
+        Binding("w", "write_report", "Report"),
+        Binding("b", "open_report", "Browser"),
         Binding("escape", "leave_field", "Leave field"),
-        Binding("question_mark", "help", "Help"),
         Binding("ctrl+q", "quit", "Quit", priority=True),
     ]
 
@@ -174,10 +180,12 @@ class RigApp(App):
                 return None
             if action in ("disconnect", "home", "test_capture"):
                 return True if self.devices.session.connected else None
-        if action in ("open_recording", "refit"):
+        if action == "open_report":  # offered only where a browser can open a window, once there is a report
+            return self.results.report is not None and display_available()
+        if action in ("open_recording", "refit", "export_model", "compare", "write_report"):
             if self.results.busy:
                 return None
-            if action == "refit":
+            if action != "open_recording":
                 return True if self.results.session.diagnosis is not None else None
         return True
 
@@ -262,8 +270,10 @@ class RigApp(App):
     def key_help(self) -> list[KeyRow]:
         """Every key the app and its own widgets bind, by where it works (`ACTION_TAB`): what `?` shows."""
         bound = [(ACTION_TAB.get(action_name(b), "everywhere"), b) for b in bindings_of(type(self))]
-        bound += [(f"{where}", b) for where, cls in (("results: effect list", EffectList), ("quit question", ConfirmQuit),
-                                                      ("this help", HelpScreen)) for b in bindings_of(cls)]
+        bound += [(where, b) for where, cls in (("results: effect list", EffectList), ("results: compare with", AskPath),
+                                                ("results: comparison", TextScreen),
+                                                ("quit question", ConfirmQuit), ("this help", HelpScreen))
+                  for b in bindings_of(cls)]
         return key_rows(bound, frozenset(LETTER_ACTIONS | {"help"}))  # (a text field takes ? too; a list does not)
 
     def action_open_recording(self) -> None:
@@ -271,6 +281,25 @@ class RigApp(App):
 
     def action_refit(self) -> None:
         self.results.refit()
+
+    def action_export_model(self) -> None:
+        self.results.export()
+
+    def action_write_report(self) -> None:
+        self.results.write_report()
+
+    def action_open_report(self) -> None:
+        self.results.open_report()
+
+    def action_compare(self) -> None:
+        name = self.results.session.path.name if self.results.session.path else "the recording"
+
+        def answered(other: str | None) -> None:
+            if other is not None:
+                self.results.compare(other)
+
+        self.push_screen(AskPath(f"Compare {name} with (its model fitted to both, as rig compare does):",
+                                 self.results.other_recording()), answered)
 
     async def action_quit(self) -> None:
         """Quit; during a run, only once the operator confirms (`ConfirmQuit`): the run is then aborted, keeping its

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import re
+import textwrap
+
 from rich.table import Table
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
-from textual.containers import Vertical, VerticalScroll
+from textual.containers import ScrollableContainer, Vertical, VerticalScroll
 from textual.screen import ModalScreen
-from textual.widgets import Static
+from textual.widgets import Input, Static
 
 from .key_list import KeyRow
 
@@ -62,6 +65,58 @@ class HelpScreen(ModalScreen[None]):
     def plain(self) -> str:
         """The help as text: a line a row, "group: keys: what they do"."""
         return "\n".join(f"{r.group}: {r.keys_text()}: {r.does}" for r in self.rows)
+
+    def action_close(self) -> None:
+        self.dismiss(None)
+
+
+class AskPath(ModalScreen["str | None"]):
+    """One path asked for (enter gives it, esc gives up): the recording to compare with."""
+
+    BINDINGS = [Binding("escape", "give_up", "Give up")]
+
+    def __init__(self, question: str, value: str = "") -> None:
+        super().__init__()
+        self.question, self.value = question, value
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog"):
+            yield Static(self.question, markup=False)
+            yield Input(self.value, id="asked-path", compact=True, placeholder="path to a recording (.h5)")
+            yield Static("enter compares; esc goes back", classes="dialog-keys", markup=False)
+
+    def on_mount(self) -> None:
+        self.query_one(Input).focus()  # (the app focuses nothing by itself: AUTO_FOCUS)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        event.stop()
+        self.dismiss(event.value.strip())
+
+    def action_give_up(self) -> None:
+        self.dismiss(None)
+
+
+class TextScreen(ModalScreen[None]):
+    """A report to read (a comparison's): its tables keep their columns and scroll sideways; its sentences (the lines
+    that start with a word and a colon: "verdict: ...") are wrapped to the screen. Arrows scroll; esc or q closes."""
+
+    BINDINGS = [Binding("escape,q", "close", "Close")]
+
+    def __init__(self, title: str, text: str, width: int = 72) -> None:
+        super().__init__()
+        self.title_text = title
+        self.text = "\n".join(textwrap.fill(line, width, subsequent_indent="  ") if re.match(r"[a-z-]+: ", line) else line
+                              for line in text.splitlines())
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog wide"):
+            yield Static(self.title_text, classes="dialog-title", markup=False)
+            with ScrollableContainer(id="text-scroll"):
+                yield Static(Text(self.text, no_wrap=True), id="text-body")
+            yield Static("arrows scroll; esc or q closes", classes="dialog-keys", markup=False)
+
+    def on_mount(self) -> None:
+        self.query_one("#text-scroll").focus()
 
     def action_close(self) -> None:
         self.dismiss(None)

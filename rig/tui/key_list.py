@@ -25,7 +25,8 @@ class KeyRow:
 def bindings_of(cls: type) -> list[Binding]:
     """The bindings `cls` declares itself (its BINDINGS), one key each, as Textual reads them (`BindingsMap`); those
     without a description are left out. (Textual's own widgets' keys, arrows and the like, are theirs to list.)"""
-    return [b for _, b in BindingsMap(cls.__dict__.get("BINDINGS", [])) if b.description and not b.system]
+    return [b for declared in cls.__dict__.get("BINDINGS", []) for _, b in BindingsMap([declared])  # (in their order)
+            if b.description and not b.system]
 
 
 def action_name(binding: Binding) -> str:
@@ -38,17 +39,18 @@ def key_rows(bound: Iterable[tuple[str, Binding]], letters: frozenset[str] = fro
     one description in a group share a row (f1 and 1: Devices screen), and so do the descriptions of the same keys
     (p: Pause / Continue). Keys of actions in `letters` are off while a text field has the focus."""
     keys_of: dict[tuple[str, str], list[str]] = {}
-    off: set[str] = set()
+    off: set[tuple[str, str]] = set()
     for group, b in bound:
         keys = keys_of.setdefault((group, b.description), [])
         key = format_key(b.key)
         if key not in keys:
             keys.append(key)
         if action_name(b) in letters:
-            off.add(key)
+            off.add((group, key))
     does_of: dict[tuple[str, tuple[str, ...]], list[str]] = {}
     for (group, does), keys in keys_of.items():
         does_of.setdefault((group, tuple(keys)), []).append(does)
     groups = list(dict.fromkeys(group for group, _ in does_of))
-    rows = [KeyRow(group, keys, " / ".join(does), frozenset(keys) & off) for (group, keys), does in does_of.items()]
+    rows = [KeyRow(group, keys, " / ".join(does), frozenset(k for k in keys if (group, k) in off))
+            for (group, keys), does in does_of.items()]
     return sorted(rows, key=lambda r: groups.index(r.group))  # (stable: in each group, the bindings' order)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
+from typing import Any, Callable
 
 from textual import work
 from textual.app import ComposeResult
@@ -15,6 +17,9 @@ from protocols.recording import RecordingError
 
 from rig.models.fitting.progress import WorkProgress
 
+from .dialogs import TextScreen
+from .results_outputs import (Written, compare, display_available, export_model, model_file, open_in_browser,
+                              report_folder, write_report)
 from .results_service import ProgressText, ResultsSession
 from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine
 
@@ -30,9 +35,9 @@ class ResultsPane(Vertical):
     in a field leaves the focus there."""
 
     class Done(Message):
-        def __init__(self, what: str, error: str = "") -> None:
+        def __init__(self, what: str, error: str = "", result: Any = None) -> None:
             super().__init__()
-            self.what, self.error = what, error
+            self.what, self.error, self.result = what, error, result
 
     class Progress(Message):
         """The diagnosis in the worker thread reached a step (posted from that thread)."""
@@ -48,6 +53,9 @@ class ResultsPane(Vertical):
         self._recording = recording
         self.busy = False
         self._typed = False  # a field's text changed while the work went on: its end leaves the focus there
+        self.opened: list[str] = []  # the recordings diagnosed here, the latest last (c offers the one before)
+        self.report: Path | None = None  # the fit report last written (b opens it)
+        self._replace: Path | None = None  # a file that exists, which the same key pressed again replaces
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
@@ -90,6 +98,7 @@ class ResultsPane(Vertical):
         """A recording that just came (a run's): the previous one's results go from the screen, so that nothing
         shown, and no key, is about another file; with `open_now`, it is diagnosed at once."""
         self.session = ResultsSession()
+        self.report, self._replace = None, None
         for table in (self.query_one(FitTable), self.query_one(BinTable), self.query_one(EffectList)):
             table.show_rows([])
         self.query_one(HeadlineChart).show_history([])
@@ -119,6 +128,85 @@ class ResultsPane(Vertical):
             return
         self._start("refit", f"fitting {'+'.join([self.session.base.name if self.session.base else '', *effects])} ...",
                     effects)
+
+    # -- what leaves the screen -------------------------------------------------------------
+    def export(self) -> None:
+        """e: the model on the screen as `rig export` writes it, to where it writes by default."""
+        out = model_file(self.session)
+        if self._exists(out, "e"):
+            return
+        self._output("export", f"writing {out} ...", lambda: export_model(self.session, out))
+
+    def write_report(self) -> None:
+        """w: fit.html of the model on the screen, as `rig fit --report` writes it, in RECORDING-report/."""
+        folder = report_folder(self.session)
+        if self._exists(folder / "fit.html", "w"):
+            return
+        self._output("report", f"writing {folder / 'fit.html'} ...", lambda: write_report(self.session, folder))
+
+    def compare(self, other: str) -> None:
+        """The recording on the screen against `other`, as `rig compare` compares them, with the model on the screen."""
+        name = self.session.path.name if self.session.path else ""
+        self._output("compare", f"fitting {self.session.fit.model.name if self.session.fit else ''} to {name} and "
+                                f"{other} ...", lambda: (other, *compare(self.session, other)))
+
+    def other_recording(self) -> str:
+        """The recording diagnosed here before the one on the screen ("" if none): what c offers to compare with."""
+        here = self.session.path.resolve() if self.session.path else None
+        return next((p for p in reversed(self.opened) if Path(p).resolve() != here), "")
+
+    def open_report(self) -> None:
+        """b: the report in a browser (the app offers it only where there is a display)."""
+        if self.report is not None:
+            self._browse(self.report)
+
+    def _exists(self, out: Path, key: str) -> bool:
+        """True, and the question on the status line, when `out` exists and `key` was not pressed again for it."""
+        if out.exists() and self._replace != out:
+            self._replace = out
+            self.status.show(f"{out} exists: {key} again replaces it", "info")
+            return True
+        self._replace = None
+        return False
+
+    def _output(self, what: str, text: str, make: Callable[[], Any]) -> None:
+        if self.busy:
+            self.status.show("busy: wait for the fit to finish", "error")
+            return
+        self.busy = True
+        self.status.show(text, "busy")
+        self.app.refresh_bindings()
+        self._output_work(what, make)
+
+    @work(thread=True, exclusive=True, group="results")
+    def _output_work(self, what: str, make: Callable[[], Any]) -> None:
+        try:
+            self.post_message(self.Done(what, result=make()))
+        except (RecordingError, ValueError, OSError) as e:
+            self.post_message(self.Done(what, error=str(e)))
+        except Exception as e:  # noqa: BLE001 - one line on the screen, and the UI goes on
+            self.post_message(self.Done(what, error=f"could not {what} {self.path}: {type(e).__name__}: {e}"))
+
+    @work(thread=True, group="browser")
+    def _browse(self, page: Path) -> None:  # (a browser given by $BROWSER is waited for: never in the UI's thread)
+        problem = open_in_browser(page)
+        self.post_message(self.Done("browse", error=problem, result=page))
+
+    def _show_output(self, m: Done) -> None:
+        if m.what == "export":
+            w: Written = m.result
+            self.status.show(w.line + (f"; {w.warning}" if w.warning else ""), "error" if w.warning else "ok")
+        elif m.what == "report":
+            self.report = m.result
+            offer = "b opens it in a browser" if display_available() else "no display here: open it where there is one"
+            self.status.show(f"report: {m.result}; {offer}", "ok")
+        elif m.what == "compare":
+            other, text, verdicts = m.result
+            name = self.session.path.name if self.session.path else ""
+            self.status.show("; ".join(verdicts) or f"compared {name} with {other}", "ok")
+            self.app.push_screen(TextScreen(f"rig compare {name} {other} --model {self.session.fit.model.name}", text))
+        elif m.what == "browse":
+            self.status.show(f"opened {m.result} in the browser", "ok")
 
     def _start(self, what: str, text: str, effects: list[str] | None = None) -> None:
         if self.busy:
@@ -163,10 +251,14 @@ class ResultsPane(Vertical):
             self.status.show(m.text, "busy")
 
     def on_results_pane_done(self, m: Done) -> None:
-        self.busy = False
+        if m.what != "browse":
+            self.busy = False
         self.app.refresh_bindings()
         if m.error:
             self.status.show(m.error, "error")
+            return
+        if m.what not in ("open", "refit"):
+            self._show_output(m)
             return
         try:
             self._show_results(m.what)
@@ -183,6 +275,9 @@ class ResultsPane(Vertical):
         self.query_one(ShapePlot).show_shape(s.shape())
         h = s.history[-1]
         if what == "open":
+            if s.path is not None:
+                self.opened = [p for p in self.opened if Path(p).resolve() != s.path.resolve()] + [str(s.path)]
+            self.report, self._replace = None, None
             name = s.path.name if s.path else ""
             text = f"{name}: headline error {h.headline.error_pct:.2f} % with {h.model}; space checks effects, f refits"
             if s.notes:

@@ -183,7 +183,7 @@ class EffectList(SelectionList[str]):
     """Effects: those in the model are checked; the others ranked by evidence. Space adds or removes.
     Each line says its state in words: [x] checked (in the next fit), [ ] not, not only by colour."""
 
-    BINDINGS = [Binding("space", "select", "Add/remove effect")]
+    BINDINGS = [Binding("space", "select", "Tick effect")]
 
     def show_rows(self, rows: Sequence[CandidateRow]) -> None:
         """Show `rows`; the same effects again (after a refit) keep the highlighted line, new ones start at the top."""
