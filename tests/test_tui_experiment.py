@@ -232,3 +232,25 @@ def test_the_help_lists_the_keys_as_bound_and_the_manual_lists_the_same():
         assert set(in_docs) <= table[screen], (screen, set(in_docs) - table[screen])
     text = DOCS.read_text()
     assert all(f"`{k}`" in text for k in ("?", "esc", "ctrl+q"))
+
+
+def test_the_experiment_screen_says_which_devices_a_run_opens():
+    async def go():
+        app = RigApp(CAMERA, "fake:", connect=False)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("2")
+            line = app.query_one("#devices-line")
+            shown = [str(line.render())]
+            for camera, stage in (("realsense:serial=123", "none:"), ("nosuchcam:", "grbl:///dev/ttyUSB0")):
+                app.devices.set_strings(camera, stage)  # (as typed on screen 1, or loaded from a file)
+                await pilot.pause()
+                shown.append(str(line.render()))
+            return shown, screen_text(app)
+
+    (simulated, real, unknown), screen = run(go())
+    assert simulated == f"camera {CAMERA} (simulated); stage fake: (simulated) (set on screen 1)"
+    assert real.startswith("camera realsense:serial=123 (Intel RealSense") and \
+        "stage none: (no stage: the distance is set by hand or fixed)" in real
+    assert unknown.startswith("camera unknown camera kind 'nosuchcam' in 'nosuchcam:'; known kinds: ")
+    assert "stage grbl:///dev/ttyUSB0 (a GRBL controller on a serial port)" in unknown
+    assert "a GRBL controller on a serial port) (set on screen 1)" in " ".join(screen.split())  # all of it, at 80x24

@@ -108,7 +108,8 @@ class RigApp(App):
                 yield DevicesPane(self._camera, self._stage, id="devices-pane")
             with TabPane("2 Experiment", id="experiment"):
                 yield ExperimentPane(self._experiment, self._experiment_file, id="experiment-pane",
-                                     limits=lambda: self.devices.limits)
+                                     limits=lambda: self.devices.limits,
+                                     devices=lambda: (self.devices.camera_string, self.devices.stage_string))
             with TabPane("3 Run", id="run"):
                 yield RunPane(self._clock, id="run-pane")
             with TabPane("4 Results", id="results"):

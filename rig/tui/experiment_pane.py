@@ -21,6 +21,7 @@ from protocols.catalogue import protocol_names
 from protocols.experiment_file import ExperimentFileError
 from protocols.plan_check import RigLimits
 
+from .devices_service import device_words
 from .fields import CheckedField, RuleCheck
 from .form import OUTPUT, ExperimentSettings, field_label, field_param, field_problem, field_takes, form_fields
 from .widgets import StatusLine
@@ -33,8 +34,10 @@ class ExperimentPane(Vertical):
     """A form over `ExperimentSettings`; ctrl+l loads a TOML file, ctrl+s saves one."""
 
     def __init__(self, settings: ExperimentSettings | None = None, toml_path: str = "experiment.toml", *,
-                 limits: Callable[[], RigLimits | None] = lambda: None, **kw) -> None:
+                 limits: Callable[[], RigLimits | None] = lambda: None,
+                 devices: Callable[[], tuple[str, str]] = lambda: ("", ""), **kw) -> None:
         super().__init__(**kw)
+        self._devices = devices  # the camera and stage strings a run would open (the Devices screen's)
         self._initial = settings or ExperimentSettings()
         self._toml = toml_path
         self._extra: dict = {}
@@ -46,6 +49,9 @@ class ExperimentPane(Vertical):
         with Horizontal(classes="field"):
             yield Label("Experiment file", classes="label")
             yield Input(self._toml, id="toml-path", compact=True)
+        with Horizontal(classes="field", id="devices-row"):
+            yield Label("Devices", classes="label")
+            yield Label("", id="devices-line", markup=False)
         with Horizontal(classes="field"):
             yield Label("Protocol", classes="label")
             yield Select([(n, n) for n in protocol_names()], value=self._initial.protocol,
@@ -63,6 +69,7 @@ class ExperimentPane(Vertical):
 
     def on_mount(self) -> None:
         self.show_settings(self._initial)
+        self.show_devices()
 
     @property
     def status(self) -> StatusLine:
@@ -161,8 +168,15 @@ class ExperimentPane(Vertical):
         self.status.show(f"saved {path}; rig run {path} runs it", "ok")
         return True
 
+    def show_devices(self) -> None:
+        """Which camera and stage a run opens, and what they are (simulated, or the kind's words)."""
+        camera, stage = self._devices()
+        self.query_one("#devices-line", Label).update(f"camera {device_words('camera', camera)}; stage "
+                                                      f"{device_words('stage', stage)} (set on screen 1)")
+
     def recheck(self) -> None:
         """Check every field and the plan again (the devices, and so the travel, may have changed)."""
+        self.show_devices()
         for f in self._fields:
             if f.kind != "checkbox":
                 w = self.query_one(f"#{f.id}", CheckedField)
