@@ -254,3 +254,52 @@ def test_the_experiment_screen_says_which_devices_a_run_opens():
     assert unknown.startswith("camera unknown camera kind 'nosuchcam' in 'nosuchcam:'; known kinds: ")
     assert "stage grbl:///dev/ttyUSB0 (a GRBL controller on a serial port)" in unknown
     assert "a GRBL controller on a serial port) (set on screen 1)" in " ".join(screen.split())  # all of it, at 80x24
+
+
+def bracketed_paste(text: str):
+    """The events a terminal's paste of `text` becomes, through Textual's own parser of what the terminal sends (a
+    terminal and tmux send a line end in a paste as \\r)."""
+    from textual._xterm_parser import XTermParser
+
+    return list(XTermParser().feed("\x1b[200~" + text.replace("\n", "\r") + "\x1b[201~"))
+
+
+def test_a_value_pasted_after_ctrl_u_is_kept(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    pasted = {  # field: (what was copied, what the field must hold)
+        "gain": ("\n32 ", "32"),  # a line end before the value (the copy began at the end of the line above), a space
+        "frames": ("  40\n", "40"),
+        "stops": ("0.5\n1.0\n1.5\n", "0.5, 1.0, 1.5"),  # a column of a spreadsheet
+        "exposure-us": ("\r\n9000\r\n", "9000"),
+        "output": ("\n run2.h5\n", "run2.h5"),
+        "toml-path": ("\nexp2.toml", "exp2.toml"),
+    }
+
+    async def paste(pilot, field: str, text: str) -> str:
+        widget = pilot.app.screen.query_one(f"#{field}")
+        widget.focus()
+        await pilot.press("end", "ctrl+u")
+        for event in bracketed_paste(text):
+            widget.post_message(event)
+        await pilot.pause()
+        return widget.value
+
+    async def go():
+        app = RigApp(CAMERA, "fake:", connect=False)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("2")
+            held = {field: await paste(pilot, field, text) for field, (text, _) in pasted.items()}
+            await pilot.press("escape", "4")
+            held["recording-path"] = await paste(pilot, "recording-path", "\n/data/run 7.h5 \n")
+            await pilot.press("f2")
+            gain = app.query_one("#gain")
+            gain.focus()
+            await pilot.press("end", "ctrl+u", "x")  # refused in an empty field...
+            refused = "Gain: refused 'x'" in str(app.query_one("#plan-line").render())
+            await pilot.press("ctrl+u")  # ...and cleared: the lines under the form say so at once
+            return held, refused, str(app.query_one("#plan-line").render()), app.experiment.checked_settings()
+
+    held, refused, line, settings = run(go())
+    assert held == {**{f: want for f, (_, want) in pasted.items()}, "recording-path": "/data/run 7.h5"}
+    assert refused and "refused" not in line and "Gain: give a number" in line
+    assert settings is None  # (the gain is empty now)

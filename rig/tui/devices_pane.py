@@ -14,6 +14,7 @@ from drivers.errors import DeviceError
 from protocols.plan_check import RigLimits
 
 from .devices_service import DeviceReport, DeviceSession, TestCapture, describe_error
+from .fields import PasteField
 from .widgets import KeyValues, StatusLine
 
 
@@ -48,10 +49,10 @@ class DevicesPane(Vertical):
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
             yield Label("Camera", classes="label")
-            yield Input(self._camera, id="camera-string", compact=True)
+            yield PasteField(self._camera, id="camera-string", compact=True)
         with Horizontal(classes="field"):
             yield Label("Stage", classes="label")
-            yield Input(self._stage, id="stage-string", compact=True)
+            yield PasteField(self._stage, id="stage-string", compact=True)
         yield StatusLine("not connected: press c to connect", id="devices-status")
         with Horizontal(classes="columns"):
             yield KeyValues(id="camera-info", classes="left")

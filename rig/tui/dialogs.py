@@ -13,6 +13,7 @@ from textual.containers import ScrollableContainer, Vertical, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Input, Static
 
+from .fields import PasteField
 from .key_list import KeyRow
 
 
@@ -82,7 +83,7 @@ class AskPath(ModalScreen["str | None"]):
     def compose(self) -> ComposeResult:
         with Vertical(classes="dialog"):
             yield Static(self.question, markup=False)
-            yield Input(self.value, id="asked-path", compact=True, placeholder="path to a recording (.h5)")
+            yield PasteField(self.value, id="asked-path", compact=True, placeholder="path to a recording (.h5)")
             yield Static("enter compares; esc goes back", classes="dialog-keys", markup=False)
 
     def on_mount(self) -> None:

@@ -22,8 +22,8 @@ from protocols.experiment_file import ExperimentFileError
 from protocols.plan_check import RigLimits
 
 from .devices_service import device_words
-from .fields import CheckedField, RuleCheck
-from .form import OUTPUT, ExperimentSettings, field_label, field_param, field_problem, field_takes, form_fields
+from .fields import CheckedField, PasteField, RuleCheck
+from .form import LIST_CHARACTERS, OUTPUT, ExperimentSettings, field_label, field_param, field_problem, field_takes, form_fields
 from .widgets import StatusLine
 
 #: at most this many problems are listed under the form
@@ -48,7 +48,7 @@ class ExperimentPane(Vertical):
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
             yield Label("Experiment file", classes="label")
-            yield Input(self._toml, id="toml-path", compact=True)
+            yield PasteField(self._toml, id="toml-path", compact=True)
         with Horizontal(classes="field", id="devices-row"):
             yield Label("Devices", classes="label")
             yield Label("", id="devices-line", markup=False)
@@ -63,7 +63,7 @@ class ExperimentPane(Vertical):
                     yield Checkbox("on", True, id=f.id, compact=True)
                 else:
                     yield CheckedField(id=f.id, type=f.kind, compact=True, validators=[RuleCheck(self._checker(f.id))],
-                                       restrict=f.restrict)
+                                       restrict=f.restrict, separator=", " if f.restrict == LIST_CHARACTERS else None)
         yield Label("", id="plan-line", markup=False)
         yield StatusLine("ctrl+l loads the experiment file, ctrl+s saves it, ctrl+r runs", id="experiment-status")
 

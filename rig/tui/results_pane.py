@@ -18,6 +18,7 @@ from protocols.recording import RecordingError
 from rig.models.fitting.progress import WorkProgress
 
 from .dialogs import TextScreen
+from .fields import PasteField
 from .results_outputs import (Written, compare, display_available, export_model, model_file, open_in_browser,
                               report_folder, write_report)
 from .results_service import ProgressText, ResultsSession
@@ -60,10 +61,10 @@ class ResultsPane(Vertical):
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
             yield Label("Recording", classes="label")
-            yield Input(self._recording, id="recording-path", compact=True, placeholder="path to a recording (.h5)")
+            yield PasteField(self._recording, id="recording-path", compact=True, placeholder="path to a recording (.h5)")
         with Horizontal(classes="field"):
             yield Label("Effects file", classes="label")
-            yield Input("", id="effects-path", compact=True,
+            yield PasteField("", id="effects-path", compact=True,
                         placeholder="optional: your effects (a .py file, docs/effects.md)")
         yield StatusLine("enter (or ctrl+o) opens the recording", id="results-status")
         with Horizontal(classes="columns"):
