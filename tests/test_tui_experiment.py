@@ -52,13 +52,22 @@ def test_a_whole_experiment_from_the_keyboard(tmp_path, monkeypatch, earlier):
             effects = app.query_one(EffectList)
             assert app.focused is effects and effects.option_count > 0  # enter would tick the earlier one's effect
 
-            # the experiment, set up and run from the keyboard
+            # a live look at the wall before recording: its fill and tilt (the simulated wall faces the camera)
+            await pilot.press("f1", "v")
+            preview = app.query_one("#preview-info")
+            await until(pilot, lambda: "fill" in preview.plain, "the live preview")
+            assert re.search(r"wall: 1\.0\d\d m on the axis, fill 100\.0 %", preview.plain), preview.plain
+            tilt, se = (float(g) for g in re.search(r"tilt: ([-+][\d.]+) \+/- ([\d.]+) deg", preview.plain).groups())
+            assert abs(tilt) <= 4 * max(se, 0.005)  # (0.005: the last digit shown)
+            assert "bright" in app.query_one("#depth-image").plain
+
+            # the experiment, set up and run from the keyboard (the preview stops for it)
             await pilot.press("f2")
             await type_into(pilot, "stops", "0.5, 1.0, 1.5")
             await type_into(pilot, "frames", "4")
             await type_into(pilot, "output", "new.h5")
             await pilot.press("ctrl+r")
-            assert app.tab == "run"
+            assert app.tab == "run" and not app.devices.previewing
             await until(pilot, lambda: app.run_pane.state.status == "done", "the run")
             assert "its results: screen 4" in app.run_pane.status.text
 
@@ -217,7 +226,7 @@ def test_the_help_lists_the_keys_as_bound_and_the_manual_lists_the_same():
         assert b.description in said[(where, format_key(key))]
     assert said[("everywhere", "f1")] == "Devices screen" and ("everywhere", "1") in said
     assert said[("run", "p")] == "Pause / Continue" and said[("results: effect list", "space")] == "Tick effect"
-    assert "c*" in shown and "ctrl+l " in shown and "Pause / Continue" in shown  # on the screen, not only in the widget
+    assert "c*" in shown and "Devices screen" in shown and "ctrl+l " in shown  # on the screen, not only in the widget
     # the manual's table and the bindings: the same keys on each screen
     table = docs_key_table()
     bound = {}

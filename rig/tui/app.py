@@ -35,14 +35,14 @@ TABS = ("devices", "experiment", "run", "results")
 
 #: the screen each action belongs to; actions not listed work everywhere
 ACTION_TAB = {
-    "connect": "devices", "disconnect": "devices", "test_capture": "devices", "home": "devices",
+    "connect": "devices", "disconnect": "devices", "test_capture": "devices", "home": "devices", "preview": "devices",
     "load_experiment": "experiment", "save_experiment": "experiment", "run_from_form": "experiment",
     "start_run": "run", "pause": "run", "unpause": "run", "abort": "run", "resume_run": "run",
     "open_recording": "results", "refit": "results", "export_model": "results", "compare": "results",
     "write_report": "results", "open_report": "results",
 }
 #: actions on plain letter and digit keys: off while a form field has the focus (the field takes the key)
-LETTER_ACTIONS = {"connect", "disconnect", "test_capture", "home", "start_run", "pause", "unpause", "abort",
+LETTER_ACTIONS = {"connect", "disconnect", "test_capture", "home", "preview", "start_run", "pause", "unpause", "abort",
                   "resume_run", "refit", "export_model", "compare", "write_report", "open_report", "digit_tab"}
 #: the widgets of a form: while one has the focus, keys are for it
 FORM_FIELDS = (Input, Select, Checkbox)
@@ -71,6 +71,7 @@ class RigApp(App):
         Binding("x", "disconnect", "Disconnect"),
         Binding("t", "test_capture", "Test capture"),
         Binding("h", "home", "Home stage"),
+        Binding("v", "preview", "Preview"),
         Binding("ctrl+l", "load_experiment", "Load"),
         Binding("ctrl+s", "save_experiment", "Save"),
         Binding("ctrl+r", "run_from_form", "Run"),
@@ -176,10 +177,10 @@ class RigApp(App):
             return None if run.active else True
         if action == "resume_run":
             return False if run.active or not self.run_pane.can_resume(self._output()) else True
-        if action in ("connect", "disconnect", "home", "test_capture"):
+        if action in ("connect", "disconnect", "home", "test_capture", "preview"):
             if self.devices.busy or run.active:
                 return None
-            if action in ("disconnect", "home", "test_capture"):
+            if action in ("disconnect", "home", "test_capture", "preview"):
                 return True if self.devices.session.connected else None
         if action == "open_report":  # offered only where a browser can open a window, once there is a report
             return self.results.report is not None and display_available()
@@ -229,13 +230,27 @@ class RigApp(App):
         self.devices.home()
 
     def action_test_capture(self) -> None:
+        settings = self._camera_settings()
+        if settings is not None:
+            self.devices.test_capture(settings)
+
+    def action_preview(self) -> None:
+        if self.devices.previewing:
+            self.devices.stop_preview()
+            self.devices.status.show("preview stopped", "info")
+            return
+        settings = self._camera_settings()
+        if settings is not None:
+            self.devices.start_preview(settings)
+
+    def _camera_settings(self) -> CameraSettings | None:
+        """The experiment's projector, exposure and gain (None, said on the Devices screen, if they are refused)."""
         s = self.experiment.checked_settings()
         if s is None:
             self.devices.status.show("the experiment's settings are refused; see the Experiment screen", "error")
-            return
-
-        self.devices.test_capture(CameraSettings(projector_on=s.value("projector_on"), exposure_us=s.value("exposure_us"),
-                                                 gain=s.value("gain")))
+            return None
+        return CameraSettings(projector_on=s.value("projector_on"), exposure_us=s.value("exposure_us"),
+                              gain=s.value("gain"))
 
     def action_load_experiment(self) -> None:
         devices = self.experiment.load()
@@ -340,6 +355,8 @@ class RigApp(App):
         if self.devices.busy:
             self.run_pane.status.show("a device operation is under way; try again when it is done", "error")
             return False
+        if self.devices.previewing:
+            self.devices.stop_preview()  # (it lets go of the camera before the run closes it)
         if self.devices.session.connected:
             self.devices.released("the run opens the devices itself")
         self.run_pane.start(s, self.devices.camera_string, self.devices.stage_string, self.devices.session, resume=resume)
