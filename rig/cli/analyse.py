@@ -339,12 +339,9 @@ def _fit_report(args: argparse.Namespace, fit, d, h, notes: list[str], acc=None)
     """`--report DIR`: fit.html and its plot (rig.reports.report_pages), with the accuracy against the stage."""
     if not args.report:
         return
-    from ..accuracy import accuracy_lines
-    from ..reports.report_pages import fit_report
+    from ..reports.report_pages import fit_report, fit_report_text
 
-    text = "\n".join([*(f"note: {n}" for n in notes), fit.report(), f"    headline error: {h}",
-                      *(accuracy_lines(acc) if acc is not None else [])])
-    page = fit_report(args.recording, fit, d, h, text, args.report, notes)
+    page = fit_report(args.recording, fit, d, h, fit_report_text(fit, h, notes, acc), args.report, notes)
     print(f"report: {page}", file=sys.stderr if args.json else sys.stdout)
 
 

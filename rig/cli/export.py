@@ -38,19 +38,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from protocols.recording import Recording
-
-    from ..accuracy import accuracy_of, bias_export
-    from ..diagnosis import headline
     from ..models.parts.prediction import EffectStage
     from ..models.fitting.progress import ProgressCounter
     from ..noise_model import TERMS, NoiseModel
-    from ..models.export import noise_model_document
+    from ..reports.noise_model_file import default_model_path, model_document, write_model, written_line
     from ..reports.sigma_map import map_problem, parse_ranges, write_sigma_maps
     from .shared import catalogue_of, check_window, fit_or_refuse, model_data, parse_model_option, progress_line
 
     check_window(args)
-    out = Path(args.out) if args.out else Path(args.recording).with_name(Path(args.recording).stem + "-noise-model.json")
+    out = Path(args.out) if args.out else default_model_path(args.recording)
     refuse_unwritable(out, "--out")
     refuse_suffix(out, "--out", (".json",), "a noise model (JSON)")
     try:
@@ -80,19 +76,13 @@ def cmd_export(args: argparse.Namespace) -> int:
             counter.step(f"fitting {model.name}")
             fit = fit_or_refuse(model, d)
         counter.step("headline error: where the model is valid")
-        h = headline(fit, d)
+        doc, h = model_document(fit, d, args.recording, notes)
         counter.finish()
-        with Recording(args.recording) as rec:
-            # the pixels weighted as rig fit weighs them (rig.accuracy.pixel_weights): the same bias in both
-            bias = bias_export(accuracy_of(d, None, rec.protocol, rec.protocol_params))
-            doc = noise_model_document(fit, d, rec, args.recording, h, notes, bias)
-    out.parent.mkdir(parents=True, exist_ok=True)  # a folder that does not exist yet is made, as for every output
-    out.write_text(json.dumps(doc, indent=1) + "\n")
+    write_model(doc, out)
     stream = sys.stderr if args.json else sys.stdout
     if args.json:
         print(json.dumps(doc, indent=1))
-    print(f"model: {out} ({doc['model']}; sigma valid for Z {doc['valid']['z_m'][0]:.3f}-{doc['valid']['z_m'][1]:.3f} m, "
-          f"headline error there {h.error_pct:.2f} %)", file=stream)
+    print(written_line(doc, out, h), file=stream)
     if ranges is not None:
         written = write_sigma_maps(NoiseModel.from_dict(doc, str(out)), ranges, out.with_name(out.stem + ".sigma-map"))
         print(f"sigma maps: {', '.join(map(str, written))}", file=stream)

@@ -9,6 +9,7 @@ from pathlib import Path
 from protocols.recording import Recording, utc_now
 
 from .. import package_version
+from ..accuracy import accuracy_lines
 from ..diagnosis.bins import pooled_sigma, sigma_by_range
 from ..recordings.comparison import Pair, Scatter, misfit_caution, repeatability_verdict
 from ..recordings.recording_fits import RecordingResult, summarise
@@ -34,6 +35,12 @@ def write_fit_page(title: str, headline: str, report: str, plots: list[Path], ou
     body = (f'{run_table(run)}\n{summary(headline, state)}\n<h2>Plots</h2>\n{figures(plots)}\n'
             f"<h2>Full report</h2>\n<pre>{html.escape(report)}</pre>")
     return _write(out_dir, "fit.html", page(title, body))
+
+
+def fit_report_text(fit, h, notes: list[str], acc=None) -> str:
+    """fit.html's text report: the notes, the fit's report, its headline error and the accuracy against the stage."""
+    return "\n".join([*(f"note: {n}" for n in notes), fit.report(), f"    headline error: {h}",
+                      *(accuracy_lines(acc) if acc is not None else [])])
 
 
 def fit_report(path: str, fit, d, h, text: str, out_dir: str | Path, notes: list[str]) -> Path:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import threading
+
 from textual import work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.message import Message
 from textual.widgets import Input, Label
+from textual.worker import get_current_worker
 
 from drivers.camera import CameraSettings
 from drivers.errors import DeviceError
@@ -14,7 +17,13 @@ from drivers.errors import DeviceError
 from protocols.plan_check import RigLimits
 
 from .devices_service import DeviceReport, DeviceSession, TestCapture, describe_error
-from .widgets import KeyValues, StatusLine
+from .fields import PasteField
+from .preview import WallView, view_rows, wall_view
+from .widgets import DepthImage, KeyValues, StatusLine
+
+#: the live preview: a frame this often (s), and how long stopping it waits for its frame at most (s)
+PREVIEW_PERIOD_S = 0.2
+PREVIEW_STOP_S = 2.0
 
 
 class DevicesPane(Vertical):
@@ -31,12 +40,22 @@ class DevicesPane(Vertical):
     class LimitsChanged(Message):
         """What the devices allow (travel, image size) became known or unknown: the experiment form rechecks."""
 
+    class PreviewFrame(Message):
+        """A frame of the live preview, seen (posted from the preview's thread)."""
+
+        def __init__(self, view: WallView) -> None:
+            super().__init__()
+            self.view = view
+
     def __init__(self, camera: str, stage: str, **kw) -> None:
         super().__init__(**kw)
         self.session = DeviceSession()
         self._camera, self._stage = camera, stage
         self.busy = False
         self._limits: tuple[tuple[str, str], RigLimits] | None = None
+        self._stop_preview = threading.Event()  # set: the preview's thread ends after its frame
+        self._preview_ended = threading.Event()
+        self._preview_ended.set()
 
     @property
     def limits(self) -> RigLimits | None:
@@ -48,16 +67,19 @@ class DevicesPane(Vertical):
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
             yield Label("Camera", classes="label")
-            yield Input(self._camera, id="camera-string", compact=True)
+            yield PasteField(self._camera, id="camera-string", compact=True)
         with Horizontal(classes="field"):
             yield Label("Stage", classes="label")
-            yield Input(self._stage, id="stage-string", compact=True)
+            yield PasteField(self._stage, id="stage-string", compact=True)
         yield StatusLine("not connected: press c to connect", id="devices-status")
         with Horizontal(classes="columns"):
             yield KeyValues(id="camera-info", classes="left")
             with Vertical(classes="right"):
                 yield KeyValues(id="stage-info")
                 yield KeyValues(id="capture-info")
+                with Vertical(id="preview-box"):
+                    yield KeyValues(id="preview-info")
+                    yield DepthImage(id="depth-image")
 
     # -- what the app asks ------------------------------------------------------------------
     @property
@@ -88,6 +110,54 @@ class DevicesPane(Vertical):
     def test_capture(self, settings: CameraSettings) -> None:
         self._start("capture", "capturing 10 frames ...", settings)
 
+    # -- the live preview --------------------------------------------------------------------
+    @property
+    def previewing(self) -> bool:
+        return not self._preview_ended.is_set()
+
+    def start_preview(self, settings: CameraSettings) -> None:
+        """v: frames from the camera where the stage stands, five a second, with the experiment's settings: the
+        depth image, its fill rate and the wall's plane (`preview.wall_view`), until `stop_preview`."""
+        self._stop_preview.clear()
+        self._preview_ended.clear()
+        self.query_one("#preview-box").display = True
+        self.query_one("#capture-info", KeyValues).display = False
+        self.status.show("live preview: v stops it", "busy")
+        self._preview(settings)
+
+    def stop_preview(self) -> None:
+        """End the preview and wait (a frame at most) for its thread to let go of the camera."""
+        self._stop_preview.set()
+        self._preview_ended.wait(PREVIEW_STOP_S)
+        self.query_one("#preview-box").display = False
+        self.query_one("#capture-info", KeyValues).display = True
+
+    @work(thread=True, exclusive=True, group="preview")
+    def _preview(self, settings: CameraSettings) -> None:
+        worker = get_current_worker()
+        try:
+            camera = self.session.devices.camera if self.session.devices else None
+            if camera is None:
+                raise DeviceError("not connected: press c to connect")
+            camera.configure(settings)
+            info = camera.info()
+            while not self._stop_preview.is_set() and not worker.is_cancelled:
+                for frame in camera.frames(1):
+                    self.post_message(self.PreviewFrame(wall_view(frame.depth, info.intrinsics, info.depth_scale_m)))
+                self._stop_preview.wait(PREVIEW_PERIOD_S)
+        except DeviceError as e:
+            self.post_message(self.Done("preview", error=str(e)))
+        except Exception as e:  # noqa: BLE001 - a driver's own bug is one line on the screen, not the end of the UI
+            self.post_message(self.Done("preview", error=f"preview failed: {type(e).__name__}: {e}"))
+        finally:
+            self._preview_ended.set()
+
+    def on_devices_pane_preview_frame(self, m: PreviewFrame) -> None:
+        if self._stop_preview.is_set():
+            return
+        self.query_one("#preview-info", KeyValues).show_rows(view_rows(m.view))
+        self.query_one(DepthImage).show_image(m.view.image_m)
+
     def released(self, why: str) -> None:
         """The run takes the devices (and closes them here, in its own thread): say so."""
         self._clear()
@@ -98,6 +168,8 @@ class DevicesPane(Vertical):
         if self.busy:
             self.status.show("busy: wait for the device operation to finish", "error")
             return
+        if self.previewing:  # the operation takes the camera (or closes it)
+            self.stop_preview()
         self.busy = True
         self.status.show(text, "busy")
         self.app.refresh_bindings()
@@ -123,6 +195,11 @@ class DevicesPane(Vertical):
             self.post_message(self.Done(what, error=f"{what} failed: {type(e).__name__}: {e}"))
 
     def on_devices_pane_done(self, m: Done) -> None:
+        if m.what == "preview":  # (its thread ended on an error; it was never `busy`)
+            self.stop_preview()
+            self.status.show(m.error, "error")
+            self.app.refresh_bindings()
+            return
         self.busy = False
         self.app.refresh_bindings()
         if m.error:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 from drivers.camera import CameraSettings
 from drivers.errors import DeviceError
+from drivers.registry import kind
 from drivers.stage import NoStage, Stage
 from protocols.plan_check import RigLimits
 from rig.devices import DeviceSpec, RigDevices, open_devices
@@ -19,6 +20,16 @@ from .centre import CentreStats
 
 #: what the status line adds when a device string fails
 HINT = "use fake: to try the simulated rig"
+
+
+def device_words(what: str, text: str) -> str:
+    """A device string and what it is, without opening it: "fake: (simulated)", "none: (no stage: the distance is
+    set by hand or fixed)", "realsense:serial=1 (Intel RealSense ...)"; what is wrong with it when no kind takes it."""
+    try:
+        found = kind(what, DeviceSpec.parse(text).kind, text)
+    except DeviceError as e:
+        return str(e)  # (it names the string)
+    return f"{text} ({'simulated' if found.simulated else found.summary or found.name})"
 
 
 @dataclass

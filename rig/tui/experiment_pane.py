@@ -21,8 +21,9 @@ from protocols.catalogue import protocol_names
 from protocols.experiment_file import ExperimentFileError
 from protocols.plan_check import RigLimits
 
-from .fields import CheckedField, RuleCheck
-from .form import OUTPUT, ExperimentSettings, field_label, field_param, field_problem, field_takes, form_fields
+from .devices_service import device_words
+from .fields import CheckedField, PasteField, RuleCheck
+from .form import LIST_CHARACTERS, OUTPUT, ExperimentSettings, field_label, field_param, field_problem, field_takes, form_fields
 from .widgets import StatusLine
 
 #: at most this many problems are listed under the form
@@ -33,8 +34,10 @@ class ExperimentPane(Vertical):
     """A form over `ExperimentSettings`; ctrl+l loads a TOML file, ctrl+s saves one."""
 
     def __init__(self, settings: ExperimentSettings | None = None, toml_path: str = "experiment.toml", *,
-                 limits: Callable[[], RigLimits | None] = lambda: None, **kw) -> None:
+                 limits: Callable[[], RigLimits | None] = lambda: None,
+                 devices: Callable[[], tuple[str, str]] = lambda: ("", ""), **kw) -> None:
         super().__init__(**kw)
+        self._devices = devices  # the camera and stage strings a run would open (the Devices screen's)
         self._initial = settings or ExperimentSettings()
         self._toml = toml_path
         self._extra: dict = {}
@@ -45,7 +48,10 @@ class ExperimentPane(Vertical):
     def compose(self) -> ComposeResult:
         with Horizontal(classes="field"):
             yield Label("Experiment file", classes="label")
-            yield Input(self._toml, id="toml-path", compact=True)
+            yield PasteField(self._toml, id="toml-path", compact=True)
+        with Horizontal(classes="field", id="devices-row"):
+            yield Label("Devices", classes="label")
+            yield Label("", id="devices-line", markup=False)
         with Horizontal(classes="field"):
             yield Label("Protocol", classes="label")
             yield Select([(n, n) for n in protocol_names()], value=self._initial.protocol,
@@ -57,12 +63,13 @@ class ExperimentPane(Vertical):
                     yield Checkbox("on", True, id=f.id, compact=True)
                 else:
                     yield CheckedField(id=f.id, type=f.kind, compact=True, validators=[RuleCheck(self._checker(f.id))],
-                                       restrict=f.restrict)
+                                       restrict=f.restrict, separator=", " if f.restrict == LIST_CHARACTERS else None)
         yield Label("", id="plan-line", markup=False)
         yield StatusLine("ctrl+l loads the experiment file, ctrl+s saves it, ctrl+r runs", id="experiment-status")
 
     def on_mount(self) -> None:
         self.show_settings(self._initial)
+        self.show_devices()
 
     @property
     def status(self) -> StatusLine:
@@ -161,8 +168,15 @@ class ExperimentPane(Vertical):
         self.status.show(f"saved {path}; rig run {path} runs it", "ok")
         return True
 
+    def show_devices(self) -> None:
+        """Which camera and stage a run opens, and what they are (simulated, or the kind's words)."""
+        camera, stage = self._devices()
+        self.query_one("#devices-line", Label).update(f"camera {device_words('camera', camera)}; stage "
+                                                      f"{device_words('stage', stage)} (set on screen 1)")
+
     def recheck(self) -> None:
         """Check every field and the plan again (the devices, and so the travel, may have changed)."""
+        self.show_devices()
         for f in self._fields:
             if f.kind != "checkbox":
                 w = self.query_one(f"#{f.id}", CheckedField)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import re
 from typing import Callable
 
+from textual import events
 from textual.message import Message
 from textual.validation import Integer, Number, ValidationResult, Validator
 from textual.widgets import Input
@@ -42,11 +43,44 @@ NUMERIC_SHAPES = {"integer": rf"[-+]?{_DIGITS}",
                   "number": rf"[-+]?{_DIGITS}(?:\.{_DIGITS})?+(?:(?<=\d)(?:[eE][-+]?|[-+]){_DIGITS})?+"}
 
 
-class CheckedField(Input):
+def pasted_text(text: str, separator: str | None = None) -> str:
+    """What a paste puts into a one-line field: its lines, less the blank ones and the spaces around each; the first,
+    or with `separator` all of them joined, the cells of a copied row too (a spreadsheet's column or row of stops
+    into a list field). Textual's own Input takes the first line as it is: a copy that began with a line end (as a
+    terminal gives the line end before a selection, \\r in a paste) put nothing in the field, and one with a space
+    around a number was refused whole."""
+    lines = [part.strip() for part in re.split(r"[\r\n\t]+" if separator else r"[\r\n]+", text)]
+    lines = [line for line in lines if line]
+    if not lines:
+        return ""
+    return separator.join(lines) if separator else lines[0]
+
+
+class PasteField(Input):
+    """Textual's Input with `pasted_text`'s rule for a paste: the value pasted is not lost to a line end before it,
+    nor refused for the spaces around it."""
+
+    def __init__(self, *args, separator: str | None = None, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.separator = separator
+
+    def _on_paste(self, event: events.Paste) -> None:
+        event.prevent_default()  # (Input's own handler would paste again, by its rule)
+        event.stop()
+        text = pasted_text(event.text, self.separator)
+        if not text:
+            return
+        if self.selection.is_empty:
+            self.insert_text_at_cursor(text)
+        else:
+            self.replace(text, *self.selection)
+
+
+class CheckedField(PasteField):
     """An input whose refused characters are shown, not only rung on the bell."""
 
     class Refused(Message):
-        """Characters were refused: the form says so."""
+        """Characters were refused, or a refusal was cleared: the form says so."""
 
         def __init__(self, field: "CheckedField") -> None:
             super().__init__()
@@ -74,6 +108,8 @@ class CheckedField(Input):
         if self.refused and ((not text and not self.value) or (whole and text and self.value != before)):
             self.refused = []
             self.set_class(False, "-refused")
+            if self.value == before:  # (ctrl+u in a field already empty: no change of value tells the form)
+                self.post_message(self.Refused(self))
 
     def restricted(self) -> None:
         if self._typing not in self.refused:
