@@ -399,3 +399,20 @@ def test_calibration_week_states_the_interval_the_verdict_prints():
     low, high = (math.sqrt(4 / chi2.ppf(q, 4)) for q in (1 - ALPHA / 2, ALPHA / 2))
     text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "calibration-week.md").read_text().split())
     assert f"{100 * (1 - ALPHA):.0f} % interval" in text and f"{low:.2f} to {high:.2f} times" in text
+
+
+def test_asking_whether_an_output_can_be_written_creates_nothing(tmp_path):
+    """Issue 52: a killed `rig export` left its writability probe `.rig-write-test-XXXX` behind. The check now asks
+    the file system (access(2), statvfs) and creates nothing: the folder's modification time, which any create or
+    unlink moves, does not move."""
+    import os
+    import time
+
+    from rig.reports.writable import output_problem
+
+    before = os.stat(tmp_path).st_mtime_ns
+    time.sleep(0.01)
+    assert output_problem(tmp_path / "m.json") is None and output_problem(tmp_path / "new" / "deeper", folder=True) is None
+    assert os.stat(tmp_path).st_mtime_ns == before and list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("x")
+    assert "is a file" in output_problem(tmp_path / "file" / "m.json")

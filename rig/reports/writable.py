@@ -1,15 +1,14 @@
 """Can an output be written? Asked before long work starts, so a report is never lost at the end of it.
 
-The answer comes from trying: a test file is created (and removed) in the folder the output goes to,
-or, when that folder does not exist yet, in the nearest folder above it that does. Permission bits
-alone would not do: root may write anywhere except on a read-only file system, and no one can
-write under a path that runs through a regular file.
+The answer comes from the file system, about the folder the output goes to or, when that folder does not exist yet,
+the nearest folder above it that does: access(2) for writing and searching (which also answers EROFS on a read-only
+file system, for root too), and statvfs's read-only flag. Nothing is created: a test file that a kill interrupted
+would stay behind. No one can write under a path that runs through a regular file: that is asked first.
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 
@@ -29,9 +28,11 @@ def output_problem(path: str | Path, *, folder: bool = False) -> str | None:
     if existing.exists() and not existing.is_dir():
         return f"{existing} is a file, not a folder" if existing == where else f"{existing} is a file, so {where} cannot be made"
     try:
-        fd, name = tempfile.mkstemp(prefix=".rig-write-test-", dir=existing)
+        read_only = bool(os.statvfs(existing).f_flag & os.ST_RDONLY)
     except OSError as e:
         return f"no file can be created in {existing} ({e.strerror or e})"
-    os.close(fd)
-    os.unlink(name)
+    if read_only:
+        return f"no file can be created in {existing} (Read-only file system)"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"no file can be created in {existing} (Permission denied)"
     return None
