@@ -15,3 +15,13 @@ class PlanRefused(RunError):
     def __init__(self, message: str, problems: list[str]):
         super().__init__(message)
         self.problems = problems
+
+
+def saved_words(saved: int, n: int, path: object) -> str:
+    """What a stopped run kept, in words that are true: "1 stop is saved", "3 of 5 stops are saved ... to record the
+    rest", and with every stop saved (only the final file missing) that --resume assembles it."""
+    if saved >= n:
+        every = f"all {n} stops are" if n != 1 else "the stop is"
+        return f"{every} saved (in {path}.stops/); re-run the same command with --resume to assemble {path}"
+    return (f"{saved} of {n} stop{'s are' if n != 1 else ' is'} saved in {path}; re-run the same command with --resume "
+            "to record the rest")

@@ -22,7 +22,7 @@ from drivers.errors import CameraError, DeviceError
 from drivers.image_regions import center_box
 from drivers.stage import Stage
 
-from .run_errors import PlanRefused, RunError  # noqa: F401  (re-exported: protocols.runner.RunError)
+from .run_errors import PlanRefused, RunError, saved_words  # noqa: F401  (re-exported: protocols.runner.RunError)
 from .plan import Capture, Configure, Home, Move, Plan, Settle, WarmUp
 from .disk_space import RESERVE_BYTES, free_bytes, is_disk_full, is_storage_failure, megabytes, size_text, stop_bytes
 from .frame_continuity import FrameContinuity
@@ -209,8 +209,8 @@ class Runner:
                 self._saved_message(path, recorded, skipped, len(labels), created)
                 raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; nothing was recorded; free about "
                                f"{megabytes(e.need)} and run the command again") from None
-            raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; {saved} stops are saved in {path}; "
-                           f"free about {megabytes(e.need)} and rerun with --resume") from None
+            raise RunError(f"disk full at stop {e.index + 1} of {len(labels)}; free about {megabytes(e.need)}; "
+                           + saved_words(saved, len(labels), path)) from None
         except AssemblyError as e:  # every stop is saved; only the final file is missing
             raise RunError(str(e)) from None
         except (DeviceError, RecordingError, StillDrifting) as e:
@@ -226,7 +226,7 @@ class Runner:
                 self._saved_message(path, recorded, skipped, len(labels), created)
                 raise RunError("disk full before the first stop was saved; nothing was recorded; free some space and "
                                "run the command again") from None
-            raise RunError(f"disk full; {saved} stops are saved in {path}; free space and rerun with --resume") from None
+            raise RunError("disk full; free some space; " + saved_words(saved, len(labels), path)) from None
         self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
         return RunResult(path, recorded, skipped)
 
@@ -260,7 +260,7 @@ class Runner:
             path.unlink(missing_ok=True)
             shutil.rmtree(journal_dir(path), ignore_errors=True)
             return "nothing was recorded"
-        return f"{saved} of {n} stops are saved in {path}; re-run the same command with --resume to record the rest"
+        return saved_words(saved, n, path)
 
     def _configure(self, requested: CameraSettings) -> CameraSettings:
         got = self.camera.configure(requested)

@@ -247,3 +247,15 @@ def test_the_lock_is_never_seen_empty_with_a_delay_injected_between_its_steps(tm
     finally:
         first.kill()
         first.wait()
+
+
+def test_what_a_stopped_run_kept_is_said_truly():
+    """Issue 52: a disk that filled at the final assembly said "5 of 5 stops are saved ... to record the rest"; a disk
+    full with one stop saved said "1 stops are saved"."""
+    from protocols.run_errors import saved_words
+
+    assert saved_words(2, 3, "r.h5") == ("2 of 3 stops are saved in r.h5; re-run the same command with --resume to "
+                                         "record the rest")
+    assert saved_words(5, 5, "r.h5") == ("all 5 stops are saved (in r.h5.stops/); re-run the same command with "
+                                         "--resume to assemble r.h5")
+    assert saved_words(1, 1, "r.h5").startswith("the stop is saved") and "1 stops" not in saved_words(1, 2, "r.h5")
