@@ -35,6 +35,7 @@ HDF5_LIBVER = ("v108", "v110")
 from . import stop_journal as journal  # noqa: E402
 from .recording_errors import RecordingError  # noqa: E402,F401  (re-exported: the readers' error)
 from .run_lock import holder  # noqa: E402
+from .stop_attributes import count_attribute, count_or_zero, stop_counts  # noqa: E402
 
 
 def utc_now() -> str:
@@ -255,9 +256,9 @@ class Recording:
         lost, as_recorded, saturated = [], {}, {}
         for label in labels:
             a = self._group(label).attrs
-            if int(a.get("ir_saturated_pixels", 0)):
-                saturated[label] = int(a["ir_saturated_pixels"])
-            dropped, repeated = int(a.get("frames_dropped", 0)), int(a.get("frames_duplicated", 0))
+            if count_or_zero(a, "ir_saturated_pixels"):
+                saturated[label] = count_or_zero(a, "ir_saturated_pixels")
+            dropped, repeated = count_or_zero(a, "frames_dropped"), count_or_zero(a, "frames_duplicated")
             if dropped or repeated:
                 lost.append(f"{label} {dropped} dropped, {repeated} duplicated")
             if a.get("settings_as_recorded"):
@@ -287,7 +288,7 @@ class Recording:
         keyed = []
         for label in list(self._where):
             try:
-                index = int(self._group(label).attrs.get("index", 0))
+                index = count_attribute(self._group(label).attrs, "index", 0, self.path, label)
             except H5_ERRORS + (RecordingError,) as e:
                 self.skipped.append(f"stop {label!r}: unreadable ({type(e).__name__}: {e})")
                 del self._where[label]
@@ -324,9 +325,9 @@ class Recording:
         # the lag-1 statistics (frame independence) are absent from older recordings: not checked (None)
         lag = {k: g[k][()] if k in g else None for k in ("lag1_pairs", "lag1_m2")}
         a = dict(g.attrs)  # every attribute read once (each read from the file costs 0.1 ms)
-        repeated = a.get("frames_repeated")
+        counts = stop_counts(a, lag["lag1_pairs"] is not None, self.path, label)  # each checked with the stop
         stats = PixelStats(count=count, mean_m=g["mean_m"][()], m2_m2=g["m2_m2"][()], m3_m3=m3, m4_m4=opt("m4_m4"),
-                           **lag, frames_repeated=int(repeated) if repeated is not None else None)
+                           **lag, frames_repeated=counts["frames_repeated"])
         series = None
         if "frames" in g:
             fr = g["frames"]
@@ -350,10 +351,10 @@ class Recording:
 
         stop = StopData(
             label=label,
-            index=int(attr_number("index", 0)),
+            index=counts["index"] or 0,
             commanded_position_m=attr_number("commanded_position_m", np.nan),
             measured_position_m=attr_number("measured_position_m", np.nan),
-            n_frames=int(attr_number("n_frames", int(np.max(count)) if count.size else 0)),
+            n_frames=counts["n_frames"] if counts["n_frames"] is not None else int(np.max(count)) if count.size else 0,
             settings_requested=attr_json("settings_requested"),
             settings_read_back=attr_json("settings_read_back"),
             stats=stats,

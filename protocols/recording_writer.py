@@ -30,8 +30,8 @@ from .plan import Plan
 from .plan_check import plan_change, resume_problems
 from drivers.camera import CameraCalibration
 
-from .recording import (FORMAT, FORMAT_VERSION, HDF5_LIBVER, FrameSeries, check_format, jsonable, software_version,
-                        utc_now)
+from .recording import (FORMAT, FORMAT_VERSION, HDF5_LIBVER, FrameSeries, Recording, check_format, jsonable,
+                        software_version, utc_now)
 from .leftovers import remove_dead_leftovers
 from .recording_errors import AssemblyError, RecordingError
 from .run_lock import RunLock
@@ -199,12 +199,25 @@ class RecordingWriter:
 
     # -- stops -----------------------------------------------------------------------------
     def completed_stops(self) -> set[str]:
+        """The stops --resume keeps: journaled ones, and those of the file that are complete, read back (checksums)
+        and that a reader accepts (`Recording.stop`: every field and attribute checked). Any other stop is recorded
+        again, and the assembly replaces it: what a reader skips, --resume repairs."""
         done = set(journal.completed_stop_files(self.path))
         try:
             with h5py.File(self.path, "r") as f:
                 stops = f.get("stops", {})
-                done |= {k for k in stops if bool(stops[k].attrs.get("complete", False)) and _readable(stops[k])}
-        except OSError:
+                found = {k for k in stops if bool(stops[k].attrs.get("complete", False)) and _readable(stops[k])}
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError):  # a header too damaged to list its stops
+            return done
+        try:
+            with Recording(self.path) as rec:
+                for label in sorted(found):
+                    try:
+                        rec.stop(label)
+                        done.add(label)
+                    except (RecordingError, OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError):
+                        pass
+        except RecordingError:
             pass
         return done
 
@@ -382,6 +395,6 @@ def _readable(g: h5py.Group) -> bool:
                     return False
             elif name != "raw_depth":
                 item[()]
-    except (OSError, RuntimeError, ValueError, KeyError):
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError):  # TypeError: a damaged object header's None
         return False
     return True

@@ -10,6 +10,7 @@ import sys
 import time
 
 import h5py
+import numpy as np
 import pytest
 
 from protocols.perpendicular import perpendicular
@@ -259,3 +260,35 @@ def test_what_a_stopped_run_kept_is_said_truly():
     assert saved_words(5, 5, "r.h5") == ("all 5 stops are saved (in r.h5.stops/); re-run the same command with "
                                          "--resume to assemble r.h5")
     assert saved_words(1, 1, "r.h5").startswith("the stop is saved") and "1 stops" not in saved_words(1, 2, "r.h5")
+
+
+@pytest.mark.parametrize("damage", ["index = inf", "ir_saturated_pixels = NaN", "frames_repeated deleted",
+                                    "n_frames = -3", "m2_m2 negative", "m2_m2 deleted"])
+def test_a_stop_a_reader_skips_is_recorded_again_by_resume(tmp_path, capsys, damage):
+    """Issue 52: for the damages rig catches, `--resume` said "0 stops ... (3 already there)" and the stop stayed
+    skipped; a stop attribute of inf or NaN refused the whole file. Each damage to the 1.0 m stop now skips that
+    stop alone, with one note, and --resume records it again (what a reader skips, --resume repairs)."""
+    path = tmp_path / "r.h5"
+    run(path)
+    with h5py.File(path, "r+") as f:
+        g = f["stops"]["1.000m"]
+        if damage == "index = inf":
+            g.attrs["index"] = np.inf
+        elif damage == "ir_saturated_pixels = NaN":
+            g.attrs["ir_saturated_pixels"] = np.nan
+        elif damage == "frames_repeated deleted":
+            del g.attrs["frames_repeated"]
+        elif damage == "n_frames = -3":
+            g.attrs["n_frames"] = -3
+        elif damage == "m2_m2 negative":
+            m2 = g["m2_m2"][()]
+            g["m2_m2"][...] = -np.abs(m2) - 1e-9
+        else:
+            del g["m2_m2"]
+    assert main(["fit", str(path), "--json"]) == 3  # two stops left: lambda not determined (docs/models.md)
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    assert [n for n in notes if "1.000m" in n and "skipped" in n], notes
+    result = run(path, resume=True)
+    assert result.recorded == ["1.000m"] and len(result.skipped) == 2, (result.recorded, result.skipped)
+    with Recording(path) as rec:
+        assert rec.stop_labels() == ["0.500m", "1.000m", "1.500m"] and rec.stop("1.000m").n_frames == 4
