@@ -292,3 +292,18 @@ def test_a_stop_a_reader_skips_is_recorded_again_by_resume(tmp_path, capsys, dam
     assert result.recorded == ["1.000m"] and len(result.skipped) == 2, (result.recorded, result.skipped)
     with Recording(path) as rec:
         assert rec.stop_labels() == ["0.500m", "1.000m", "1.500m"] and rec.stop("1.000m").n_frames == 4
+
+
+def test_diagnose_skips_a_damaged_first_stop_as_fit_does(tmp_path, capsys):
+    """Issue 52: a damaged first stop made `rig diagnose` refuse the whole file (its report read the first stop's
+    settings) while `rig fit` skipped only that stop. Both now skip it, with the same note."""
+    path = tmp_path / "r.h5"
+    run(path, stops_m=[0.5, 1.0, 1.5, 2.0])
+    with h5py.File(path, "r+") as f:
+        del f["stops"]["0.500m"]["m2_m2"]
+    assert main(["fit", str(path)]) == 0
+    fit_note = [n for n in capsys.readouterr().out.splitlines() if n.startswith("note: skipped stop '0.500m'")]
+    assert main(["diagnose", str(path), "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    assert len(fit_note) == 1 and fit_note[0] in out.splitlines(), (fit_note, out[:500])
+    assert (tmp_path / "d" / "diagnosis.html").exists()

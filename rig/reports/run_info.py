@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from protocols.recording import Recording
+from protocols.recording import Recording, RecordingError
 
 from ..recordings.camera_setup import json_attr
 
@@ -54,7 +54,13 @@ def run_info(path: str | Path, report_utc: str, rig_version: str) -> RunInfo:
         a = rec.attrs
         camera, stage, params = json_attr(a, "camera"), json_attr(a, "stage"), rec.protocol_params
         labels = rec.stop_labels()
-        first = rec.stop(labels[0]) if labels else None
+        first = None
+        for label in labels:  # the settings of the first stop that reads: a damaged one is skipped, as rig fit skips it
+            try:
+                first = rec.stop(label)
+                break
+            except RecordingError:
+                continue
         read_back = first.settings_read_back if first is not None else {}
         requested = {**{k: params[k] for k in ("exposure_us", "gain", "projector_on") if k in params},
                      **(first.settings_requested if first is not None else {})}
