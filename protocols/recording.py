@@ -35,7 +35,7 @@ HDF5_LIBVER = ("v108", "v110")
 from . import stop_journal as journal  # noqa: E402
 from .recording_errors import RecordingError  # noqa: E402,F401  (re-exported: the readers' error)
 from .run_lock import holder  # noqa: E402
-from .stop_attributes import count_attribute, count_or_zero, stop_counts  # noqa: E402
+from .stop_attributes import count_attribute, count_or_zero, number_attribute, stop_counts  # noqa: E402
 
 
 def utc_now() -> str:
@@ -334,14 +334,6 @@ class Recording:
             n = len(fr["frame_number"]) if "frame_number" in fr else 0
             series = FrameSeries(**{k: (fr[k][()] if k in fr else np.full(n, np.nan)) for k in FrameSeries.FIELDS})
 
-        def attr_number(key: str, default: float) -> float:
-            raw = a.get(key, default)
-            try:
-                return float(raw)
-            except (TypeError, ValueError):
-                raise RecordingError(f"{self.path}: stop {label!r} attribute {key} is {raw!r}, not a number; "
-                                     "see docs/data-format.md") from None
-
         def attr_json(key: str) -> dict[str, Any]:
             try:
                 v = json.loads(a.get(key, "{}"))
@@ -352,8 +344,8 @@ class Recording:
         stop = StopData(
             label=label,
             index=counts["index"] or 0,
-            commanded_position_m=attr_number("commanded_position_m", np.nan),
-            measured_position_m=attr_number("measured_position_m", np.nan),
+            commanded_position_m=number_attribute(a, "commanded_position_m", self.path, label),
+            measured_position_m=number_attribute(a, "measured_position_m", self.path, label),
             n_frames=counts["n_frames"] if counts["n_frames"] is not None else int(np.max(count)) if count.size else 0,
             settings_requested=attr_json("settings_requested"),
             settings_read_back=attr_json("settings_read_back"),
@@ -415,6 +407,8 @@ def check_stop(path: Path, s: StopData, shape: tuple[int, int]) -> None:
             raise bad(name, f"has shape {arr.shape}, not the stop's {st.count.shape}")
     if st.lag1_pairs is not None and np.any(st.lag1_pairs >= np.maximum(st.count, 1)):
         raise bad("lag1_pairs", "has more consecutive pairs than samples at some pixel")
+    if st.lag1_m2 is not None and st.lag1_pairs is not None and not np.isfinite(st.lag1_m2[st.lag1_pairs > 0]).all():
+        raise bad("lag1_m2", "is not finite at a pixel with consecutive pairs (the stop would drop out of the lag-1 check)")
     if s.ir_saturated is not None and s.n_frames > 0 and np.any(s.ir_saturated > s.n_frames):
         raise bad("ir_saturated", f"counts more clipped samples than the stop's {s.n_frames} frames at some pixel")
     count = st.count

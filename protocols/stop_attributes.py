@@ -46,6 +46,17 @@ def count_attribute(attrs: Mapping[str, Any], key: str, default: int | None, pat
     return v
 
 
+def number_attribute(attrs: Mapping[str, Any], key: str, path: str | Path, label: str) -> float:
+    """The stop's attribute `key` as a float (NaN where absent: not known); a RecordingError naming the stop where it
+    is not a number."""
+    raw = attrs.get(key, math.nan)
+    try:
+        return float(raw)
+    except (TypeError, ValueError):
+        raise RecordingError(f"{path}: stop {label!r} attribute {key} is {raw!r}, not a number; see "
+                             "docs/data-format.md") from None
+
+
 def stop_counts(attrs: Mapping[str, Any], has_lag1: bool, path: str | Path, label: str) -> dict[str, int | None]:
     """Every counting attribute of the stop, checked (`count_attribute`; None where absent); `frames_repeated` is
     written with the lag-1 statistics, so a stop with `lag1_pairs` (`has_lag1`) and without it is damaged."""

@@ -263,7 +263,7 @@ def test_what_a_stopped_run_kept_is_said_truly():
 
 
 @pytest.mark.parametrize("damage", ["index = inf", "ir_saturated_pixels = NaN", "frames_repeated deleted",
-                                    "n_frames = -3", "m2_m2 negative", "m2_m2 deleted"])
+                                    "n_frames = -3", "m2_m2 negative", "m2_m2 deleted", "lag1_m2 NaN at a pixel"])
 def test_a_stop_a_reader_skips_is_recorded_again_by_resume(tmp_path, capsys, damage):
     """Issue 52: for the damages rig catches, `--resume` said "0 stops ... (3 already there)" and the stop stayed
     skipped; a stop attribute of inf or NaN refused the whole file. Each damage to the 1.0 m stop now skips that
@@ -280,6 +280,10 @@ def test_a_stop_a_reader_skips_is_recorded_again_by_resume(tmp_path, capsys, dam
             del g.attrs["frames_repeated"]
         elif damage == "n_frames = -3":
             g.attrs["n_frames"] = -3
+        elif damage == "lag1_m2 NaN at a pixel":  # it dropped the stop from the lag-1 check, silently
+            lag = g["lag1_m2"][()]
+            lag[4, 7] = np.nan
+            g["lag1_m2"][...] = lag
         elif damage == "m2_m2 negative":
             m2 = g["m2_m2"][()]
             g["m2_m2"][...] = -np.abs(m2) - 1e-9
