@@ -35,6 +35,7 @@ HDF5_LIBVER = ("v108", "v110")
 from . import stop_journal as journal  # noqa: E402
 from .recording_errors import RecordingError  # noqa: E402,F401  (re-exported: the readers' error)
 from .run_lock import holder  # noqa: E402
+from .truncated_file import LOST_INDEX, open_hdf5, truncated_words  # noqa: E402
 from .stop_attributes import count_attribute, count_or_zero, number_attribute, stop_counts  # noqa: E402
 
 
@@ -129,18 +130,20 @@ class Recording:
             raise RecordingError(f"{self.path} is a folder, not a recording; give one of its .h5 files (rig fit and rig "
                                  "compare take a folder with --many or as several recordings)" if self.path.is_dir() else
                                  f"{self.path} does not exist; check the path (rig demo writes to rig-output/)")
-        try:
-            self.file = h5py.File(self.path, "r")
-        except OSError as e:
-            raise RecordingError(f"{self.path} is not an HDF5 file ({e}); pass a recording written by rig run or rig import") from None
+        # truncated: (bytes there, bytes it should have) of a file whose end is missing (protocols.truncated_file)
+        self.file, self.truncated = open_hdf5(self.path)
         self._stop_files: dict[str, h5py.File] = {}
         try:
             self._read_header()
+            if self.truncated and not self.stop_labels():
+                raise RecordingError(truncated_words(self.path, *self.truncated, LOST_INDEX))
         except RecordingError:
             self.close()
             raise
         except H5_ERRORS as e:
             self.close()
+            if self.truncated:
+                raise RecordingError(truncated_words(self.path, *self.truncated, LOST_INDEX)) from None
             raise RecordingError(f"{self.path}: its header cannot be read ({type(e).__name__}: {e}); the file is damaged: "
                                  "copy it aside and record again (docs/reliability.md)") from None
         except BaseException:
@@ -271,6 +274,8 @@ class Recording:
                        + ("; ..." if len(lost) > 5 else ""))
         if saturated:
             out.append(saturation_note(saturated, self.calibration.width * self.calibration.height))
+        if self.truncated:
+            out.append(truncated_words(self.path, *self.truncated, "the stops whose bytes are missing are skipped"))
         out += [f"skipped {s}" for s in self.skipped]
         out += [f"imported: {n}" for n in json.loads(self.attrs.get("import_notes", "[]"))]  # protocols/bag_import.py
         if len(labels) == 1 and self.protocol != "tilted":

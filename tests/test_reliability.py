@@ -311,3 +311,29 @@ def test_diagnose_skips_a_damaged_first_stop_as_fit_does(tmp_path, capsys):
     out = capsys.readouterr().out
     assert len(fit_note) == 1 and fit_note[0] in out.splitlines(), (fit_note, out[:500])
     assert (tmp_path / "d" / "diagnosis.html").exists()
+
+
+
+def test_a_truncated_recording_keeps_the_stops_whose_bytes_survive(tmp_path, capsys):
+    """Issue 52: a file truncated at 95 % was "not an HDF5 file" and lost the whole run. rig now reads a truncated
+    file as if padded with zeros (protocols/truncated_file.py): a cut of the last bytes keeps the stops whose bytes
+    survive, with a note; a cut into what indexes the stops (their headers are written last) is one line saying so."""
+    import os
+    import shutil
+
+    path = tmp_path / "r.h5"
+    run(path, stops_m=[0.5, 1.0, 1.5, 2.0])
+    size = os.path.getsize(path)
+    short = tmp_path / "short.h5"
+    shutil.copy(path, short)
+    os.truncate(short, size - 8)
+    assert main(["fit", str(short), "--json"]) in (0, 3)
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    assert any("short.h5 is truncated:" in n and "the stops whose bytes are missing are skipped" in n for n in notes)
+    with Recording(short) as rec:
+        assert rec.truncated == (size - 8, size) and len(rec.stop_labels()) >= 2, rec.skipped
+    os.truncate(path, int(0.95 * size))
+    assert main(["fit", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "r.h5 is truncated:" in err and "(95 %)" in err, err
+    assert "no stop can be found" in err
