@@ -125,6 +125,11 @@ def step_problems(plan: Plan, recipes: dict[str, StopRecipe]) -> list[str]:
                 distance_m(f"{plan.name}: stop {label!r}", "position_m", r.position_m)
         except ValueError as e:
             out.append(str(e))
+        name = len(journal.stop_file(Path("r.h5"), label).name.encode())
+        if name > journal.MAX_NAME_BYTES:
+            out.append(f"{plan.name}: stop {label[:40]!r}... has a name of {len(label)} characters, too long for the file "
+                       f"its data are kept in ({name} bytes; at most {journal.MAX_NAME_BYTES}); give it a shorter name "
+                       "(for an import, rename its folder)")
     return out
 
 

@@ -22,6 +22,8 @@ from urllib.parse import quote, unquote
 
 STOP_SUFFIX = ".h5"
 PARTIAL_SUFFIX = ".h5.partial"
+#: the longest a stop's own file name may be, in bytes: file systems take 255, and the writer adds ".<pid>.tmp"
+MAX_NAME_BYTES = 230
 #: the group holding the stop inside its own file (copied to /stops/<label> on assembly)
 STOP_GROUP = "stop"
 

@@ -298,10 +298,19 @@ def _npy_out_of_range(src):
     return "stop_e/z.npy (frame 0): values outside 0-65535"
 
 
+def _long_folder_name(src):
+    """Issue 52: a 245-character stop folder name gave an OSError ENAMETOOLONG from the stop's journal file."""
+    text = (src / MANIFEST_NAME).read_text().replace('"stop_c" = ', f'"{"c" * 245}" = ')
+    (src / MANIFEST_NAME).write_text(text)
+    (src / "stop_c").rename(src / ("c" * 245))
+    return "has a name of 245 characters, too long for the file its data are kept in"
+
+
 @pytest.mark.parametrize("spoil", [_resize, _eight_bit, _colour, _one_frame, _no_distance,
                                    _table_names_a_missing_folder, _distance_not_in_name, _wrong_unit,
                                    _baseline_in_mm, _negative_focal_length,
-                                   _principal_point_outside, _bad_toml, _garbage, _truncated_last, _bad_npy, _float_npy, _npy_out_of_range])
+                                   _principal_point_outside, _bad_toml, _garbage, _truncated_last, _bad_npy, _float_npy, _npy_out_of_range,
+                                   _long_folder_name])
 def test_bad_input_stops_with_one_line_and_leaves_no_file(live, tmp_path, spoil):
     src = dump(live, tmp_path / "frames", frames=3)
     expected = spoil(src)
