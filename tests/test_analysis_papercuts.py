@@ -416,3 +416,19 @@ def test_asking_whether_an_output_can_be_written_creates_nothing(tmp_path):
     assert os.stat(tmp_path).st_mtime_ns == before and list(tmp_path.iterdir()) == []
     (tmp_path / "file").write_text("x")
     assert "is a file" in output_problem(tmp_path / "file" / "m.json")
+
+
+def test_compare_with_a_report_writes_nothing_beside_its_inputs(small_recording, tmp_path, capsys):
+    """Issue 52: `rig compare a.h5 b.h5 --report cmp` also wrote a-compare.png beside the input (left there stray when
+    the disk filled). With --report and no --plot the plot is the report's own."""
+    import shutil
+
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    a, b = inputs / "a.h5", inputs / "b.h5"
+    shutil.copy(small_recording, a)
+    shutil.copy(small_recording, b)
+    assert main(["compare", str(a), str(b), "--report", str(tmp_path / "cmp")]) == 0
+    assert f"plot: {tmp_path / 'cmp' / 'compare-overlay.png'}" in capsys.readouterr().out
+    assert sorted(p.name for p in inputs.iterdir()) == ["a.h5", "b.h5"]
+    assert sorted(p.name for p in (tmp_path / "cmp").iterdir()) == ["compare-overlay.png", "compare.html"]

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--models", help="one recording: the models to compare, comma-separated, e.g. active,active+slant_range")
     p.add_argument("--model", help="several recordings: the model fitted to each (default: the paper's power law)")
     p.add_argument("--plot", metavar="FILE.png", help="several recordings: the overlay of sigma against range "
-                                                      "(default: FIRST-compare.png beside the first recording)")
+                                                      "(default: FIRST-compare.png beside the first recording; with --report, only the report's)")
     p.add_argument("--report", metavar="DIR", help="several recordings: also write compare.html and its plot in DIR")
     p.set_defaults(func=cmd_compare)
 

@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("repeatability", parents=[shared_options(several=True), cluster_options()],
                        help="repeated runs of one camera and setting: is the run-to-run scatter what the errors say?")
     p.add_argument("--model", help="the model to fit to every run (default: the paper's power law, as rig fit)")
-    p.add_argument("--plot", metavar="FILE.png", help="the parameters run by run (default: FIRST-repeatability.png)")
+    p.add_argument("--plot", metavar="FILE.png", help="the parameters run by run (default: FIRST-repeatability.png; with --report, only the report's)")
     p.add_argument("--report", metavar="DIR", help="also write repeatability.html and its plots in DIR")
     p.set_defaults(func=cmd_repeatability)
 
@@ -92,11 +92,15 @@ def fit_each(args: argparse.Namespace, paths: list[str], what: str):
     return [done[p] for p in paths]
 
 
-def _outputs(args: argparse.Namespace, first: str, suffix: str) -> Path:
-    plot = Path(args.plot) if args.plot else Path(first).with_name(f"{Path(first).stem}-{suffix}.png")
-    refuse_unwritable(plot, "--plot")
+def _outputs(args: argparse.Namespace, first: str, suffix: str) -> Path | None:
+    """The plot's path: --plot, else beside the first recording; None with --report and no --plot (the plot is the
+    report's own, and nothing is written beside the inputs)."""
     if args.report:
         refuse_unwritable(Path(args.report), "--report", folder=True)
+        if not args.plot:
+            return None
+    plot = Path(args.plot) if args.plot else Path(first).with_name(f"{Path(first).stem}-{suffix}.png")
+    refuse_unwritable(plot, "--plot")
     return plot
 
 
@@ -137,11 +141,12 @@ def cmd_compare_recordings(args: argparse.Namespace) -> int:
         raise UsageError("; ".join(f"{r.name}: {r.error}" for r in results))
     pairs = differences(results)
     text = render_compare(results, pairs)
-    plots = [plot_overlay(results, plot)]
+    plots = [plot_overlay(results, plot)] if plot else []
     page = None
     if args.report:
         extra = [plot_overlay(results, Path(args.report) / "compare-overlay.png")]
         page = write_compare_page(results, pairs, extra, args.report, text, _runs(paths))
+        plots = plots or extra
     if args.json:
         print(dumps(compare_document(results, pairs, plots, page)))
     else:
@@ -173,11 +178,12 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(f"{e} ({'; '.join(f'{r.name}: {r.error}' for r in results if r.error)})") from None
     text = render_repeatability(results, scatters)
-    plots = [plot_runs(results, scatters, plot)]
+    plots = [plot_runs(results, scatters, plot)] if plot else []
     page = None
     if args.report:
         extra = [plot_runs(results, scatters, Path(args.report) / "repeatability-runs.png")]
         page = write_repeatability_page(results, scatters, extra, args.report, text, _runs(paths))
+        plots = plots or extra
     if args.json:
         print(dumps(repeatability_document(results, scatters, plots, page)))
     else:
