@@ -9,6 +9,7 @@ third stop a ballast file takes all but a little of the free space, as another p
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -106,7 +107,7 @@ def test_a_run_that_fills_the_disk_stops_with_one_line_and_resumes(small_disk):
     assert "Traceback" not in p.stderr, p.stderr
     msg = p.stderr.strip().splitlines()[-1]  # progress lines above it, then the one line that says what happened
     assert "disk full at stop" in msg and "of 11" in msg and "--resume" in msg and "MB" in msg, msg
-    saved = int(msg.split("; ")[1].split()[0])
+    saved = int(re.search(r"(\d+) of 11 stops are saved", msg).group(1))
     assert saved >= 1
     with Recording(out) as rec:
         assert len(rec.stop_labels()) == saved and rec.skipped == []
