@@ -203,10 +203,16 @@ class RecordingWriter:
         and that a reader accepts (`Recording.stop`: every field and attribute checked). Any other stop is recorded
         again, and the assembly replaces it: what a reader skips, --resume repairs."""
         done = set(journal.completed_stop_files(self.path))
+        found = set()
         try:
             with h5py.File(self.path, "r") as f:
                 stops = f.get("stops", {})
-                found = {k for k in stops if bool(stops[k].attrs.get("complete", False)) and _readable(stops[k])}
+                for k in list(stops):
+                    try:  # one stop's damaged header is that stop's: the others are kept
+                        if bool(stops[k].attrs.get("complete", False)) and _readable(stops[k]):
+                            found.add(k)
+                    except (OSError, RuntimeError, KeyError, ValueError, TypeError):
+                        pass
         except (OSError, RuntimeError, KeyError, ValueError, TypeError):  # a header too damaged to list its stops
             return done
         try:
@@ -343,13 +349,20 @@ class RecordingWriter:
                 # disk is a plain OSError (HDF5 1.14 crashes in close() after a failed write: SIGSEGV, found by
                 # injecting ENOSPC at each pwrite64, tests/fault_matrix.py)
                 image = io.BytesIO(self.path.read_bytes())
-                with h5py.File(image, "a", libver=HDF5_LIBVER) as out:
-                    _copy_stops(out, files)
+                try:
+                    with h5py.File(image, "a", libver=HDF5_LIBVER) as out:
+                        _copy_stops(out, files)
+                except _DamagedLink:  # a stop whose header is damaged cannot be unlinked: a new file without it
+                    image = io.BytesIO()
+                    _rebuild(self.path, image, files)
                 journal.write_bytes_durably(image.getvalue(), self.path)
             else:  # too big for memory (raw frames kept): assembled on disk, beside the recording
                 shutil.copyfile(self.path, tmp)
-                with h5py.File(tmp, "a", libver=HDF5_LIBVER) as out:
-                    _copy_stops(out, files)
+                try:
+                    with h5py.File(tmp, "a", libver=HDF5_LIBVER) as out:
+                        _copy_stops(out, files)
+                except _DamagedLink:
+                    _rebuild(self.path, tmp, files)
                 journal.commit(tmp, self.path)
         except (OSError, RuntimeError) as e:  # h5py says a full disk as RuntimeError ("errno = 28")
             tmp.unlink(missing_ok=True)
@@ -374,12 +387,38 @@ class RecordingWriter:
         self.close()
 
 
+class _DamagedLink(Exception):
+    """A stop to replace whose object header is damaged: HDF5 cannot unlink it (its checksum fails)."""
+
+
+def _rebuild(old_path: Path, target: Any, files: dict[str, Path]) -> None:
+    """A new recording in `target` (a path or a file object): the old one's header and every stop of it that reads
+    and is not replaced, then the completed stop files (`_copy_stops`). A stop that cannot be copied was skipped by
+    every reader; it is left out (a replacement for it is in `files` when the plan still holds it)."""
+    with h5py.File(old_path, "r") as old, h5py.File(target, "w", libver=HDF5_LIBVER) as out:
+        out.attrs.update(dict(old.attrs))
+        for name in old:
+            if name != "stops":
+                old.copy(old[name], out, name=name)
+        stops = out.create_group("stops")
+        for label in old["stops"]:
+            if label not in files:
+                try:
+                    old.copy(old["stops"][label], stops, name=label)
+                except (KeyError, RuntimeError, OSError, ValueError, TypeError):
+                    pass
+        _copy_stops(out, files)
+
+
 def _copy_stops(out: h5py.File, files: dict[str, Path]) -> None:
     """Each completed stop file's group into the recording (replacing a stop of that label), then `ended_utc`."""
     stops = out.require_group("stops")
     for label, p in files.items():
         if label in stops:
-            del stops[label]
+            try:
+                del stops[label]
+            except (KeyError, RuntimeError) as e:
+                raise _DamagedLink(label) from e
         with h5py.File(p, "r") as src:
             src.copy(src[journal.STOP_GROUP], stops, name=label)
     out.attrs["ended_utc"] = utc_now()

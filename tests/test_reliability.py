@@ -337,3 +337,29 @@ def test_a_truncated_recording_keeps_the_stops_whose_bytes_survive(tmp_path, cap
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "r.h5 is truncated:" in err and "(95 %)" in err, err
     assert "no stop can be found" in err
+
+
+@pytest.mark.parametrize("offset", [30, 60])
+def test_a_stop_with_a_damaged_header_is_recorded_again_and_the_file_rebuilt(tmp_path, capsys, offset):
+    """Issue 52: damage to a stop's object header made every `rig run --resume` crash (a TypeError while checking the
+    stops, then HDF5 unable to unlink the damaged group, leaving run.h5.stops/ behind). A byte of the 1.0 m stop's
+    object header is flipped here: the stop is skipped with a note, --resume records it alone again, and the file is
+    rebuilt without the damaged object (the others copied), with nothing left beside it."""
+    path = tmp_path / "r.h5"
+    run(path)
+    with h5py.File(path, "r") as f:
+        addr = h5py.h5o.get_info(f["stops"]["1.000m"].id).addr
+    with open(path, "r+b") as fh:
+        fh.seek(addr + offset)
+        byte = fh.read(1)
+        fh.seek(addr + offset)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    assert main(["fit", str(path), "--json"]) == 3
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    assert [n for n in notes if "skipped stop '1.000m'" in n], notes
+    result = run(path, resume=True)
+    assert result.recorded == ["1.000m"] and sorted(result.skipped) == ["0.500m", "1.500m"]
+    with Recording(path) as rec:
+        assert rec.stop_labels() == ["0.500m", "1.000m", "1.500m"] and rec.skipped == []
+        assert all(rec.stop(label).n_frames == 4 for label in rec.stop_labels())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.h5"]
