@@ -432,3 +432,26 @@ def test_compare_with_a_report_writes_nothing_beside_its_inputs(small_recording,
     assert f"plot: {tmp_path / 'cmp' / 'compare-overlay.png'}" in capsys.readouterr().out
     assert sorted(p.name for p in inputs.iterdir()) == ["a.h5", "b.h5"]
     assert sorted(p.name for p in (tmp_path / "cmp").iterdir()) == ["compare-overlay.png", "compare.html"]
+
+
+
+def test_a_full_disk_under_the_standard_output_does_not_say_run_again(tmp_path, capsys, monkeypatch):
+    """Issue 52: a bag import whose last line to stdout hit a full disk said "disk full ... run the command again",
+    though its file was complete (and the re-run then said it already exists). rig run, import and simulate end with
+    that line: when it is lost, the one line says the file is complete."""
+    import errno
+    import io
+
+    class FullDisk(io.StringIO):
+        def write(self, text: str) -> int:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    out = tmp_path / "r.h5"
+    monkeypatch.setattr("sys.stdout", FullDisk())
+    assert main(["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9", "--stops", "0.5,1.0",
+                 "--frames", "4", "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"disk full writing the standard output: {out} is complete" in err, err
+    assert "run the command again" not in err
+    with Recording(out) as rec:
+        assert rec.stop_labels() == ["0.500m", "1.000m"] and rec.assembled

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from .options import QUIET, at_least, refuse_suffix, refuse_unwritable, verbosity
-from .usage import UsageError
+from .usage import UsageError, say_done
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -165,7 +165,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"rig: {exp.plan.name} experiment, camera {camera}, stage {stage} -> {output}", file=sys.stderr)
     result = Runner(devices.camera, devices.stage, progress=None if quiet else TerminalProgress(), sleep=devices.sleep).run(
         exp.plan, output, resume=args.resume)
-    print(f"recorded {len(result.recorded)} stops ({len(result.skipped)} already there) in {result.path}")
+    say_done(f"recorded {len(result.recorded)} stops ({len(result.skipped)} already there) in {result.path}",
+             f"{result.path} is")
     return 0
 
 
@@ -210,7 +211,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(str(e)) from None
     out = record_scenario(sc, args.output)
-    print(f"recorded {out} (seed {args.seed}); the hidden effect is written only to {answer_path(out)}")
+    say_done(f"recorded {out} (seed {args.seed}); the hidden effect is written only to {answer_path(out)}",
+             f"{out} and {answer_path(out)} are")
     return 0
 
 
@@ -264,6 +266,7 @@ def cmd_import(args: argparse.Namespace) -> int:
                                 f"stops' distances in {MANIFEST_NAME} (see docs/import.md)")
     else:
         out = import_folder(args.folder, args.output, import_overrides(args), progress=progress)
-    print(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})" + "".join(f"; note: {n}" for n in notes))
+    say_done(f"imported {args.folder} -> {out} (rig fit {out}; rig diagnose {out})" + "".join(f"; note: {n}" for n in notes),
+             f"{out} is")
     return 0
 
