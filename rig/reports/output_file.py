@@ -9,6 +9,8 @@ part of one.
 from __future__ import annotations
 
 import contextlib
+import errno
+import glob
 import os
 from pathlib import Path
 from typing import Any, Iterator
@@ -21,16 +23,66 @@ def shown(text: str) -> str:
 
 @contextlib.contextmanager
 def aside(path: str | Path) -> Iterator[Path]:
-    """A path beside `path` to write to; renamed over `path` when the block ends, removed if it raises."""
+    """A path to write `path`'s new content to; the content replaces `path` when the block ends, and nothing of it is
+    left if the block raises or the process is killed while writing.
+
+    On Linux the content goes to a file with no name (O_TMPFILE in `path`'s folder, yielded as /proc/self/fd/N), which
+    is linked as `.NAME.PID.writing` and renamed over `path` at the end: a kill before the link leaves nothing, a kill
+    between the link and the rename leaves that one file, which the next write of `path` removes (its PID is gone).
+    Elsewhere the named file is written directly. Writers get it as a file object (`open(tmp, "wb")`): one given the
+    /proc path may resolve it to the file's old name and write a new file there (tifffile does)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.writing")
+    _remove_dead_leftovers(path)
+    fd = _unnamed_file(path.parent)
     try:
-        yield tmp
+        yield Path(f"/proc/self/fd/{fd}") if fd is not None else tmp
+        if fd is not None:  # linkat(..., AT_SYMLINK_FOLLOW): CPython calls link(2), which would not follow it, unless
+            folder = os.open(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # a dir_fd is given
+            try:
+                os.link(f"/proc/self/fd/{fd}", tmp.name, dst_dir_fd=folder, follow_symlinks=True)
+            finally:
+                os.close(folder)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+    finally:
+        if fd is not None:
+            os.close(fd)
+
+
+def _unnamed_file(folder: Path) -> int | None:
+    """A writable file with no name in `folder` (O_TMPFILE), or None where the system or file system has none."""
+    flag = getattr(os, "O_TMPFILE", None)
+    if flag is None or not os.path.isdir("/proc/self/fd"):
+        return None
+    try:
+        return os.open(folder, flag | os.O_WRONLY, 0o644)
+    except OSError as e:
+        if e.errno in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL, errno.ENOENT):
+            return None
+        raise
+
+
+def _remove_dead_leftovers(path: Path) -> None:
+    """`.NAME.PID.writing` beside `path` from a process that is gone (killed between its link and its rename)."""
+    for old in path.parent.glob(f".{glob.escape(path.name)}.*.writing"):
+        pid = old.name[len(path.name) + 2:-len(".writing")]
+        if pid.isdigit() and not _alive(int(pid)):
+            with contextlib.suppress(OSError):
+                old.unlink()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def save_figure(fig: Any, path: str | Path, **savefig: Any) -> Path:
@@ -42,8 +94,8 @@ def save_figure(fig: Any, path: str | Path, **savefig: Any) -> Path:
         if text and text != shown(text):
             t.set_text(shown(text))
     path = Path(path)
-    with aside(path) as tmp:
-        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **savefig)
+    with aside(path) as tmp, open(tmp, "wb") as f:  # a file object: a writer given a path may resolve it
+        fig.savefig(f, format=path.suffix.lstrip(".") or "png", **savefig)
     return path
 
 

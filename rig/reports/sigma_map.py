@@ -99,8 +99,8 @@ def write_sigma_maps(model: NoiseModel, ranges_m: list[float], out_stem: Path) -
     with aside(npy) as tmp, open(tmp, "wb") as f:  # whole or not at all (rig.reports.output_file)
         np.save(f, maps)
     # float32: sigma rounded to 2^-24 relatively (6e-8, 0.6 nm in 10 mm), what image tools and ROS's 32FC1 take
-    with aside(tif) as tmp:
-        tifffile.imwrite(tmp, maps.astype(np.float32), photometric="minisblack",
+    with aside(tif) as tmp, open(tmp, "wb") as f:  # a file object: tifffile resolves a path it is given
+        tifffile.imwrite(f, maps.astype(np.float32), photometric="minisblack",
                          metadata=tiff_metadata(model, ranges_m))
     fig, axes = plt.subplots(1, len(ranges_m), figsize=(4.2 * len(ranges_m), 3.2), squeeze=False)
     for ax, z, image in zip(axes[0], ranges_m, maps):
