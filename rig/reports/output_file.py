@@ -15,6 +15,8 @@ import os
 from pathlib import Path
 from typing import Any, Iterator
 
+from protocols.run_lock import alive
+
 
 def shown(text: str) -> str:
     """`text` with each undecodable byte of a file name (a lone surrogate) written as \\xNN."""
@@ -70,19 +72,9 @@ def _remove_dead_leftovers(path: Path) -> None:
     """`.NAME.PID.writing` beside `path` from a process that is gone (killed between its link and its rename)."""
     for old in path.parent.glob(f".{glob.escape(path.name)}.*.writing"):
         pid = old.name[len(path.name) + 2:-len(".writing")]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not alive(int(pid)):
             with contextlib.suppress(OSError):
                 old.unlink()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def save_figure(fig: Any, path: str | Path, **savefig: Any) -> Path:
