@@ -39,6 +39,10 @@ def aside(path: str | Path) -> Iterator[Path]:
     fd = _unnamed_file(path.parent)
     try:
         yield Path(f"/proc/self/fd/{fd}") if fd is not None else tmp
+        if fd is not None:  # the data on the disk before the name (a power cut leaves the old file or the new)
+            os.fsync(fd)
+        else:
+            _fsync(tmp)
         if fd is not None:  # linkat(..., AT_SYMLINK_FOLLOW): CPython calls link(2), which would not follow it, unless
             folder = os.open(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # a dir_fd is given
             try:
@@ -53,6 +57,15 @@ def aside(path: str | Path) -> Iterator[Path]:
     finally:
         if fd is not None:
             os.close(fd)
+
+
+def _fsync(path: Path) -> None:
+    """The file's data on the disk before it is renamed into place (a power cut then leaves the old or the new)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _unnamed_file(folder: Path) -> int | None:

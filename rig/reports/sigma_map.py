@@ -9,6 +9,7 @@ perpendicular to the optical axis at one range Z: there a pixel's ray meets the 
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -96,8 +97,10 @@ def write_sigma_maps(model: NoiseModel, ranges_m: list[float], out_stem: Path) -
 
     maps = sigma_maps(model, ranges_m)
     npy, tif, png = (out_stem.with_name(out_stem.name + suffix) for suffix in (".npy", ".tif", ".png"))
+    image = io.BytesIO()  # numpy writes a real file through C stdio, whose failed flush it does not report (a full
+    np.save(image, maps)  # disk left a part of the .npy in place): the bytes are written by Python instead
     with aside(npy) as tmp, open(tmp, "wb") as f:  # whole or not at all (rig.reports.output_file)
-        np.save(f, maps)
+        f.write(image.getvalue())
     # float32: sigma rounded to 2^-24 relatively (6e-8, 0.6 nm in 10 mm), what image tools and ROS's 32FC1 take
     with aside(tif) as tmp, open(tmp, "wb") as f:  # a file object: tifffile resolves a path it is given
         tifffile.imwrite(f, maps.astype(np.float32), photometric="minisblack",
