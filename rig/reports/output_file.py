@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from protocols.run_lock import alive
+from protocols.stop_journal import fsync_file
 
 
 def shown(text: str) -> str:
@@ -42,7 +43,7 @@ def aside(path: str | Path) -> Iterator[Path]:
         if fd is not None:  # the data on the disk before the name (a power cut leaves the old file or the new)
             os.fsync(fd)
         else:
-            _fsync(tmp)
+            fsync_file(tmp)
         if fd is not None:  # linkat(..., AT_SYMLINK_FOLLOW): CPython calls link(2), which would not follow it, unless
             folder = os.open(path.parent, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # a dir_fd is given
             try:
@@ -57,15 +58,6 @@ def aside(path: str | Path) -> Iterator[Path]:
     finally:
         if fd is not None:
             os.close(fd)
-
-
-def _fsync(path: Path) -> None:
-    """The file's data on the disk before it is renamed into place (a power cut then leaves the old or the new)."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _unnamed_file(folder: Path) -> int | None:
