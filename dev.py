@@ -156,7 +156,7 @@ def main(argv: list[str]) -> int:
     rest = [a for a in rest if a != "--fp-paths"]
     whole = not rest or rest == ["--quick"]  # a tier, not a selection: worth compiling the kernels first
     # the whole suite writes where its CPU went, by test file (tests/cpu_table.py; docs/testing.md has the table)
-    runs = [] if fp_only else [("pytest", {}, rest or ["--cpu-table", str(VENV / "suite-cpu.md")])]
+    runs = [] if fp_only else [("pytest", {}, rest or [f"--cpu-table={VENV / 'suite-cpu.md'}"])]
     if fp_only or not rest:  # the whole suite's numeric tests again, on other floating-point paths
         other = other_fp_env(BIN / "python")
         # in one process, which compiles for the generic CPU only the kernels these tests use: two workers and the

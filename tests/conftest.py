@@ -21,7 +21,7 @@ collect_less_often()  # as the `rig` program does (rig/runtime/process_gc.py): t
 
 import pytest
 
-pytest_plugins = ["cpu_table"]  # `--cpu-table FILE`: the CPU by test file (tests/cpu_table.py)
+pytest_plugins = ["cpu_table"]  # `--cpu-table=FILE`: the CPU by test file (tests/cpu_table.py)
 
 
 def _fail_skips_in_ci(report) -> None:

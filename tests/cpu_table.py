@@ -1,4 +1,4 @@
-"""Where the suite's CPU goes: `pytest --cpu-table FILE` writes a table of CPU by test file (docs/testing.md's).
+"""Where the suite's CPU goes: `pytest --cpu-table=FILE` writes a table of CPU by test file (docs/testing.md's).
 
 Each test's CPU is its process's own (all threads, `time.process_time`) plus the processes it started and waited
 for (`RUSAGE_CHILDREN`: the `rig` commands, the firmware, the crash children), over its setup, call and teardown;
