@@ -100,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="rig-shown")
     previous = _terminate_like_interrupt()
+    unraisable_hook, sys.unraisablehook = sys.unraisablehook, _quiet_swallowed_interrupt
     try:
         return run_command(argv)
     except (UsageError, RunError, RecordingError, DeviceError, ExperimentFileError, FolderImportError, EffectFileError) as e:
@@ -133,6 +134,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         raise
     finally:
+        sys.unraisablehook = unraisable_hook
         for signum, handler in (previous or {}).items():
             signal.signal(signum, handler)
 
@@ -149,6 +151,15 @@ def _shown_bytes(e: UnicodeError) -> tuple[str, int]:
 def _raise_interrupt(signum: int, frame: object) -> None:
     interruption.request()  # kept if Python swallows the exception (raised inside a weakref callback or __del__)
     raise KeyboardInterrupt
+
+
+def _quiet_swallowed_interrupt(unraisable: object) -> None:
+    """sys.unraisablehook: an interrupt raised where Python cannot raise it (a weakref callback or __del__ that ran
+    when the signal came) is printed by Python as "Exception ignored ... Traceback" on stderr; it is not lost
+    (`_raise_interrupt` requested the stop first), so it is not shown. Anything else goes to Python's own hook."""
+    if isinstance(getattr(unraisable, "exc_value", None), KeyboardInterrupt) and interruption.REQUESTED.is_set():
+        return
+    sys.__unraisablehook__(unraisable)
 
 
 def _terminate_like_interrupt():
