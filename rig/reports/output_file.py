@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import glob
+import io
 import os
 from pathlib import Path
 from typing import Any, Iterator
@@ -91,8 +92,10 @@ def save_figure(fig: Any, path: str | Path, **savefig: Any) -> Path:
         if text and text != shown(text):
             t.set_text(shown(text))
     path = Path(path)
+    image = io.BytesIO()  # drawn whole first, then written in one call (matplotlib writes a PNG in three)
+    fig.savefig(image, format=path.suffix.lstrip(".") or "png", **savefig)
     with aside(path) as tmp, open(tmp, "wb") as f:  # a file object: a writer given a path may resolve it
-        fig.savefig(f, format=path.suffix.lstrip(".") or "png", **savefig)
+        f.write(image.getbuffer())
     return path
 
 
