@@ -8,13 +8,14 @@ protocol's own), and `ProtocolSpec.plan` collects them into one `CaptureSettings
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from drivers.camera import CameraSettings
 
 from .plan import Capture, WarmUp
 from .plan_values import ProtocolParam, between, whole_between
+from .region_of_interest import check_region
 
 #: the widest ranges any supported camera takes (RealSense D4xx: exposure 1-165000 us, gain 16-248;
 #: OAK-D: exposure up to 33000 us, ISO 100-1600); a device refuses what it cannot do when configured
@@ -43,6 +44,9 @@ CAPTURE_PARAMS = (
                   form=False),
     ProtocolParam("warm_up_max_s", float, 1800.0, "s", "Warm-up at most [s]",
                   "a camera still drifting after this long stops the run", between(1.0, 86_400.0, "s"), form=False),
+    ProtocolParam("region_px", list, [], "px", "Region [px]", "x, y, width, height of the part of the image the "
+                  "wall fills, when a target does not fill the frame: only it is recorded (empty: the whole image)",
+                  check_region),
 )
 #: the warm-up's parameters: they change no stop's recording, so a resumed run may change them (plan_check)
 WARM_UP_PARAMS = ("warm_up_drift_mm_per_min", "warm_up_window_s", "warm_up_max_s")
@@ -59,7 +63,8 @@ class CaptureSettings:
     image; ambient_frames: extra frames per stop with the projector off (the ambient light
     level); keep_raw: store the raw frames too; warm_up_drift_mm_per_min: before the first stop, wait until the
     frame mean depth drifts less than this (0: do not wait), judged over the last warm_up_window_s seconds, for
-    at most warm_up_max_s seconds (`plan.WarmUp`).
+    at most warm_up_max_s seconds (`plan.WarmUp`); region_px: [x, y, width, height] of the image to record, px
+    ([]: the whole image; protocols.region_of_interest).
     """
 
     projector_on: bool = _DEFAULT["projector_on"]
@@ -72,6 +77,7 @@ class CaptureSettings:
     warm_up_drift_mm_per_min: float = _DEFAULT["warm_up_drift_mm_per_min"]
     warm_up_window_s: float = _DEFAULT["warm_up_window_s"]
     warm_up_max_s: float = _DEFAULT["warm_up_max_s"]
+    region_px: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         for p in CAPTURE_PARAMS:

@@ -31,6 +31,7 @@ from .plan_check import RigLimits, disk_need_bytes, plan_problems, stop_recipes
 from .recording import FrameSeries, RecordingError
 from .recording_errors import AssemblyError
 from .recording_writer import RecordingWriter
+from .region_of_interest import through_region
 from .stop_journal import journal_dir
 from .stats import MeanImageAccumulator, PixelMomentAccumulator
 from .warm_up import StillDrifting, wait_until_warm
@@ -131,6 +132,7 @@ class Runner:
         created = not resume
         recorded: list[str] = []
         skipped: list[str] = []
+        whole_camera, self.camera = self.camera, through_region(self.camera, plan.params.get("region_px"))
         try:
             with writer, self.camera, self.stage:
                 info = self.camera.info()
@@ -227,6 +229,8 @@ class Runner:
                 raise RunError("disk full before the first stop was saved; nothing was recorded; free some space and "
                                "run the command again") from None
             raise RunError("disk full; free some space; " + saved_words(saved, len(labels), path)) from None
+        finally:
+            self.camera = whole_camera
         self.progress(ProgressEvent("done", text=f"{len(recorded)} stops recorded, {len(skipped)} already there"))
         return RunResult(path, recorded, skipped)
 

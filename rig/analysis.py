@@ -16,10 +16,12 @@ from functools import cached_property
 from pathlib import Path
 
 from protocols.recording import Recording
+from protocols.region_of_interest import region_words
 
 from .diagnosis.bins import BinnedSigma, pooled_sigma, sigma_by_range
 from .models import ModelData, ModelFit, fit_power_law, load_samples
 from .models.data.independence import independence
+from .recordings.camera_setup import json_attr
 from .models.fitting.progress import ProgressCounter
 
 #: the note a recording gives when planned stops are missing (protocols.recording.Recording.notes)
@@ -37,6 +39,7 @@ class RecordingFit:
     fit: ModelFit  # the paper's power law
     labels: list[str]  # the stops, in order
     notes: list[str]  # what to know about the recording itself (interrupted, stops missing, entries skipped)
+    region: str = ""  # the part of the image recorded, in words ("": the whole image; protocols.region_of_interest)
 
     @cached_property
     def measured(self) -> BinnedSigma:
@@ -58,6 +61,7 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
         labels = rec.stop_labels()
         protocol = rec.protocol
         notes = recording_notes(rec)
+        region = region_words(json_attr(rec.attrs, "camera"))
     frames = independence(samples.stops)
     if frames.correlated:  # the fit's errors are widened for it (rig.models.data.independence); say why, and the fix
         notes = [*notes, frames.sentence()]
@@ -65,7 +69,7 @@ def fit_recording(path: str | Path, *, z_min_m: float | None = None, z_max_m: fl
     samples = in_window(samples, z_min_m, z_max_m)
     counter.step("fitting k and lambda")
     fit = fit_power_law(samples)
-    return RecordingFit(Path(path), protocol, projector, samples, fit, labels, notes)
+    return RecordingFit(Path(path), protocol, projector, samples, fit, labels, notes, region)
 
 
 def recording_notes(rec: Recording) -> list[str]:

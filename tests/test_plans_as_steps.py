@@ -57,7 +57,7 @@ def test_the_default_perpendicular_plan_step_by_step():
         "stops_m": [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0], "frames_per_stop": 300,
         "projector_on": True, "exposure_us": 8500.0, "gain": 16.0, "settle_s": 1.0, "ir": True,
         "ambient_frames": 0, "keep_raw": False,
-        "warm_up_drift_mm_per_min": 0.0, "warm_up_window_s": 60.0, "warm_up_max_s": 1800.0,
+        "warm_up_drift_mm_per_min": 0.0, "warm_up_window_s": 60.0, "warm_up_max_s": 1800.0, "region_px": [],
     }
 
 

@@ -97,7 +97,7 @@ def add_protocol_options(p: argparse.ArgumentParser) -> None:
             {"metavar": {list: "LIST", int: "N"}.get(param.type, "X")}
         try:
             group.add_argument(param.cli_option, dest=OPTION_DEST + name,
-                               help=f"{param.help}{unit} [{name}; {takers}; default {default}]", **kw)
+                               help=f"{param.help}{unit} [{name}; {takers}; default {default or 'none'}]", **kw)
         except argparse.ArgumentError:
             raise UsageError(f"the protocol parameter {name} ({', '.join(s.name for s, _ in uses)}) has the option "
                              f"{param.cli_option}, which is rig run's own; give the parameter another option") from None

@@ -126,7 +126,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         for note in r.notes:
             print(f"note: {note}")
         mode = "projector on" if r.projector_on else "projector off"
-        print(f"{r.path}: {r.protocol}, {mode}")
+        print(f"{r.path}: {r.protocol}, {mode}" + (f"; the region {r.region}" if r.region else ""))
         print(r.fit.report())
         print(f"    headline error: {h}")
         print(_fix_line(h) or f"    (what is missing? rig diagnose {args.recording})")

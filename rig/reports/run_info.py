@@ -14,6 +14,8 @@ from typing import Any
 
 from protocols.recording import Recording, RecordingError
 
+from protocols.region_of_interest import region_words
+
 from ..recordings.camera_setup import json_attr
 
 NOT_RECORDED = "not recorded"
@@ -88,6 +90,7 @@ def run_info(path: str | Path, report_utc: str, rig_version: str) -> RunInfo:
         ("projector", "IR projector", _setting(requested, read_back, "projector_on")),
         ("stage", "stage", stage_text),
         ("protocol", "protocol", f"{protocol}{tilt}"),
+        ("region", "image recorded", region_words(camera) or "the whole image"),
         ("stops", "stops", f"{len(labels)}: {', '.join(labels[:12])}{', ...' if len(labels) > 12 else ''}"
          + (f"; {params['frames_per_stop']} frames each" if "frames_per_stop" in params else "")),
     ]

@@ -63,7 +63,7 @@ def read_rows(recording: Recording, *, min_count: int = 2, positive_variance: bo
         except RecordingError as e:  # a checksum that fails, a field out of its range: this stop only
             excluded[label] = str(e).removeprefix(f"{recording.path}: ")
             continue
-        problem = range_problem(stop) or count_problem(stop)
+        problem = range_problem(stop, cal.cx, cal.cy) or count_problem(stop)
         if problem:
             excluded[label] = problem
             continue

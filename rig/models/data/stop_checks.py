@@ -62,13 +62,17 @@ def stop_distance_m(stop) -> float:
     return stop_truth(stop)[0]
 
 
-def range_problem(stop) -> str | None:
-    """The stop's central mean range (the middle tenth of the image) against its position: more than RANGE_FACTOR
-    apart is a one-line problem naming mean_m; None when they agree or nothing says where the stop was."""
+def range_problem(stop, cx_px: float | None = None, cy_px: float | None = None) -> str | None:
+    """The stop's mean range about the optical axis (a tenth of the image each way round the principal point `cx_px`,
+    `cy_px`, else the image's centre; the image's nearest pixels when a recorded region leaves the axis out) against
+    its position: more than RANGE_FACTOR apart is a one-line problem naming mean_m; None when they agree or nothing
+    says where the stop was. On the axis a tilted wall is at the stop's distance too."""
     z = stop_distance_m(stop)
     mean = stop.stats.mean_m
     h, w = mean.shape
-    centre = mean[int(0.45 * h): max(int(0.55 * h), int(0.45 * h) + 1), int(0.45 * w): max(int(0.55 * w), int(0.45 * w) + 1)]
+    rows = _about(cy_px if cy_px is not None else (h - 1) / 2, h)
+    cols = _about(cx_px if cx_px is not None else (w - 1) / 2, w)
+    centre = mean[rows, cols]
     ok = np.isfinite(centre) & (centre > 0)
     if not math.isfinite(z) or not ok.any():
         return None
@@ -77,6 +81,13 @@ def range_problem(stop) -> str | None:
         return None
     return (f"stop {stop.label!r}: mean_m is {r:.3g} m at the image centre, but the stop was at {z:.3f} m "
             f"({r / z:.2g} times); the stop's data are damaged or recorded with another depth unit")
+
+
+def _about(centre_px: float, size: int) -> slice:
+    """A tenth of `size` pixels round `centre_px` (at least one), moved inside 0..size-1."""
+    half = max(size // 20, 0)
+    c = min(max(int(round(centre_px)), 0), size - 1)
+    return slice(max(c - half, 0), min(c + half, size - 1) + 1)
 
 
 def count_problem(stop) -> str | None:
