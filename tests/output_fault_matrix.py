@@ -5,7 +5,8 @@ absent (never a part), and what else is left in the folder, and after the next r
 
     .venv/bin/python -m tests.output_fault_matrix                  # every command: the table of docs/reliability.md
     .venv/bin/python -m tests.output_fault_matrix "fit --table"    # one
-    .venv/bin/python -m tests.output_fault_matrix --json           # the trials and findings (tests/test_output_faults.py)
+    .venv/bin/python -m tests.output_fault_matrix --json           # the trials and findings, as JSON
+    .venv/bin/python -m tests.output_fault_matrix --calls write,fsync,rename,unlink ...   # only these calls
 
 One process imports rig once and forks a child for each trial; strace attaches to the child (`strace -p`) before it
 starts the command, so the N-th traced call is the command's own and each trial costs the command, not a new
@@ -176,21 +177,21 @@ def warm(args: list[str], recordings: tuple[Path, Path], outputs: list[str]) -> 
             os.chdir(here)
 
 
-def sweep(name: str, recordings: tuple[Path, Path]) -> dict:
+def sweep(name: str, recordings: tuple[Path, Path], calls: tuple[str, ...] = CALLS) -> dict:
     """Every traced call of one command, killed and failed; the trials by call and what went wrong in any."""
     args, outputs = COMMANDS[name]
     warm(args, recordings, outputs)
     with tempfile.TemporaryDirectory() as t:
         d = folder(Path(t), recordings, outputs)
-        run(args, d, ["-o", str(d / ".log"), "-e", "trace=" + ",".join(CALLS)])
+        run(args, d, ["-o", str(d / ".log"), "-e", "trace=" + ",".join(calls)])
         log = (d / ".log").read_text().splitlines()
         reference = {o: (d / o).read_bytes() for o in outputs}
         clean_left = others(d, outputs)
-    counts = {call: sum(line.startswith(f"{call}(") for line in log) for call in CALLS}
+    counts = {call: sum(line.startswith(f"{call}(") for line in log) for call in calls}
     findings = [f"a clean run left {clean_left}"] if clean_left else []
     findings += [f"a clean run did not write {o}" for o in outputs if reference[o] == b"OLD"]
     trials = 0
-    for call in CALLS:
+    for call in calls:
         for n in range(1, counts[call] + 1):
             for fault in FAULTS:
                 with tempfile.TemporaryDirectory() as t:
@@ -212,13 +213,13 @@ def sweep(name: str, recordings: tuple[Path, Path]) -> dict:
 
 
 def recordings(where: Path) -> tuple[Path, Path]:
-    """Two small simulated perpendicular runs (32x18 px, 10 frames a stop, seeds 1 and 2)."""
+    """Two small simulated perpendicular runs (32x18 px, 5 stops of 6 frames, seeds 1 and 2)."""
     from rig.cli import main as rig
 
     recs = (where / "a.h5", where / "b.h5")
     for seed, path in zip((1, 2), recs):
         rig(["run", "--protocol", "perpendicular", "--camera", f"fake:width=32,height=18,seed={seed}",
-             "--frames", "10", "-o", str(path), "-q"])
+             "--stops", "0.5:2.5:0.5", "--frames", "6", "-o", str(path), "-q"])
     return recs
 
 
@@ -232,6 +233,11 @@ def _cpu() -> float:
 
 def main(argv: list[str]) -> int:
     as_json = "--json" in argv
+    calls = CALLS
+    if "--calls" in argv:
+        i = argv.index("--calls")
+        calls = tuple(argv[i + 1].split(","))
+        argv = argv[:i] + argv[i + 2:]
     wanted = [a for a in argv if a != "--json"] or list(COMMANDS)
     import matplotlib
 
@@ -242,7 +248,7 @@ def main(argv: list[str]) -> int:
         rows = []
         for name in wanted:
             before = _cpu()
-            rows.append(sweep(name, recs) | {"cpu_s": 0.0})
+            rows.append(sweep(name, recs, calls) | {"cpu_s": 0.0})
             rows[-1]["cpu_s"] = round(_cpu() - before, 1)
             if not as_json:
                 r = rows[-1]
