@@ -170,6 +170,8 @@ class GrblSim(GrblGcode, GrblSystemCommands, PtyController):
         while not self.critical:
             if sum(1 for q in self._queue if q[0] != "dwell") >= PLANNER_BLOCKS or self.state in ("Home", "Sleep"):
                 return  # a full planner, the homing cycle and sleep read no more lines
+            if self._dwell_until is not None or any(q[0] == "dwell" for q in self._queue):
+                return  # G4 holds the parser: mc_dwell syncs the buffer, then sleeps; lines wait in the RX buffer
             ends = [i for i in (self._rx.find(b"\n"), self._rx.find(b"\r")) if i >= 0]
             if not ends:
                 return
@@ -256,6 +258,7 @@ class GrblSim(GrblGcode, GrblSystemCommands, PtyController):
                 return
             self._dwell_until = None
             self.send_line("ok")
+            self._drain(now_s)  # the parser reads on after the dwell
         if self.carriage.moving() or self.state in ("Alarm", "Hold:0", "Hold:1", "Sleep"):
             return
         if not self._queue:
