@@ -240,6 +240,19 @@ def test_the_tui_without_a_terminal_is_one_line_not_a_hang(tmp_path, capsys):
     assert err.startswith("rig tui: error: the terminal UI needs a terminal") and len(err.splitlines()) == 1
 
 
+
+def test_the_tui_without_a_terminal_says_so_before_importing_the_app():
+    """`rig tui nothere.h5 > log` imported the app (Textual, scipy, matplotlib: 3.7 s of CPU, 5 s on the clock) before
+    it said it needs a terminal; it says so first (0.15 s). A new interpreter: what it imported is the question."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from rig.cli import main; status = main(['tui', 'nothere.h5']); "
+            "print(status, [m for m in ('rig.tui.app', 'textual', 'matplotlib', 'scipy') if m in sys.modules])")
+    r = subprocess.run([sys.executable, "-c", code], stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                       timeout=60)
+    assert r.stdout.strip() == "2 []" and r.stderr.startswith("rig tui: error: the terminal UI needs a terminal"), r
+
 def test_export_of_a_recording_that_does_not_determine_lambda_says_so_and_exits_3(tmp_path, capsys):
     """issue 51: rig export of a one-stop recording exited 0 with lambda at its bound, "NOT DETERMINED" only inside
     the JSON. It still writes the file (a model with lambda fixed would be the fix), and says so, exit 3 as rig fit."""

@@ -199,6 +199,19 @@ def test_import_main_prints_where_the_file_is(live, tmp_path, capsys):
         import_main([str(src), "-o", str(out)])
 
 
+
+def test_a_bad_value_given_as_a_flag_is_named_as_typed(live, tmp_path):
+    """issue 51: `rig import ... --baseline-m 50` was refused as "rig-import.toml: baseline_m = 50 m ...", a file the
+    operator may never have written; a value from the command line is named as typed."""
+    src = dump(live, tmp_path / "frames", frames=3, by_name=True)
+    out = tmp_path / "x.h5"
+    with pytest.raises(FolderImportError, match=r"^--baseline-m 50: 50 m is more than a stereo camera's 1 m; give it "
+                                                r"in metres \(a D435's is 0.050: 0.05 if that was mm\)$"):
+        import_main([str(src), "-o", str(out), "--baseline-m", "50"])
+    with pytest.raises(FolderImportError, match=r"^--fx -5.0; it must be a positive number$"):
+        import_main([str(src), "-o", str(out), "--fx", "-5"])
+    assert not out.exists()
+
 # -- bad input: one line naming the file, and no output file ----------------------------------
 
 def _resize(src):

@@ -344,6 +344,18 @@ class CannedResults(ResultsSession):
                 "the headline error is 1.10 % (noise alone: 1.48 %; within noise, chi2 30/32).")
 
 
+
+def test_a_headline_where_nothing_was_judged_is_said_not_drawn():
+    """issue 51: a 2x1-px recording's headline error is nan (no bin holds enough pixels to compare sigma in); the
+    chart drew its bar with int(nan), and the Results screen said "cannot convert float NaN to integer"."""
+    nothing = Headline(float("nan"), float("nan"), 0.0, 0, 1.0, 0)
+    chart = HeadlineChart()
+    chart.show_history([HistoryEntry("active", "active", nothing), HistoryEntry("+ drift", "active+drift", nothing)])
+    assert chart.plain == "active: not judged\n+ drift: not judged"
+    chart.show_history([HistoryEntry("active", "active", _headline(11.36, 1.48, False)),
+                        HistoryEntry("+ slant_range", "active+slant_range", _headline(1.10, 1.48, True))])
+    assert chart.plain == "active: 11.36 %\n+ slant_range: 1.10 % ok"
+
 def test_snapshot_devices(snap_compare):
     from rig.tui.devices_pane import DevicesPane
     from rig.tui.devices_service import TestCapture

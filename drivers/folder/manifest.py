@@ -75,7 +75,7 @@ def load_settings(src: Path, overrides: dict[str, Any] | None = None) -> tuple[I
         state = "lacks" if where.exists() else "does not exist, so it lacks"
         flags = ", ".join(FLAGS[k] for k in missing)
         raise FolderImportError(f"{where} {state} {', '.join(missing)}; add them (see docs/import.md) or pass {flags}")
-    return _validated(merged, where), manifest
+    return _validated(merged, where, given=set(given)), manifest
 
 
 #: the largest stereo baseline and depth unit a depth camera has (m): beyond them, a number in mm written as metres
@@ -83,20 +83,22 @@ MOST_BASELINE_M = 1.0
 MOST_DEPTH_UNIT_M = 0.01
 
 
-def _validated(m: dict[str, Any], where: Path) -> ImportSettings:
+def _validated(m: dict[str, Any], where: Path, given: set[str] = frozenset()) -> ImportSettings:
+    """The settings checked; a bad value is named as it was given: `--baseline-m 50` or `rig-import.toml: fx = -5`."""
     values: dict[str, Any] = {}
     for key in ("fx", "fy", "baseline_m", "depth_unit_m"):
-        values[key] = _number(m, key, where, positive=True)
+        values[key] = _number(m, key, where, positive=True, flag=key in given)
     for key, most, example in (("baseline_m", MOST_BASELINE_M, "a D435's is 0.050"),
                                ("depth_unit_m", MOST_DEPTH_UNIT_M, "0.001 for 1 mm, 0.0001 for 0.1 mm")):
         if values[key] > most:  # millimetres written as metres, most likely
-            raise FolderImportError(f"{where}: {key} = {values[key]:g} m is more than a stereo camera's {most:g} m; "
+            said = f"{FLAGS[key]} {values[key]:g}:" if key in given else f"{where}: {key} ="
+            raise FolderImportError(f"{said} {values[key]:g} m is more than a stereo camera's {most:g} m; "
                                     f"give it in metres ({example}: {values[key] / 1000:g} if that was mm)")
     for key in ("cx", "cy"):
-        values[key] = _number(m, key, where)
+        values[key] = _number(m, key, where, flag=key in given)
     for key in ("exposure_us", "gain"):
         if key in m:
-            values[key] = _number(m, key, where, positive=True)
+            values[key] = _number(m, key, where, positive=True, flag=key in given)
     if not isinstance(m["projector_on"], bool):
         raise FolderImportError(f"{where}: projector_on = {m['projector_on']!r}; write true or false")
     values["projector_on"] = m["projector_on"]
@@ -108,11 +110,13 @@ def _validated(m: dict[str, Any], where: Path) -> ImportSettings:
     return ImportSettings(**values)
 
 
-def _number(m: dict[str, Any], key: str, where: Path, *, positive: bool = False) -> float:
+def _number(m: dict[str, Any], key: str, where: Path, *, positive: bool = False, flag: bool = False) -> float:
+    """m[key] as a float; flag: it was given on the command line (FLAGS[key]), not in the manifest at `where`."""
     v = m[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
         need = "a positive number" if positive else "a number"
-        raise FolderImportError(f"{where}: {key} = {v!r}; it must be {need}")
+        said = f"{FLAGS[key]} {v!r}" if flag else f"{where}: {key} = {v!r}"
+        raise FolderImportError(f"{said}; it must be {need}")
     return float(v)
 
 

@@ -22,7 +22,7 @@ from .fields import PasteField
 from .results_outputs import (Written, compare, display_available, export_model, model_file, open_in_browser,
                               report_folder, write_report)
 from .results_service import ProgressText, ResultsSession
-from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine
+from .widgets import BinTable, EffectList, FitTable, HeadlineChart, ShapePlot, StatusLine, headline_words
 
 
 class Cancelled(Exception):
@@ -280,13 +280,17 @@ class ResultsPane(Vertical):
                 self.opened = [p for p in self.opened if Path(p).resolve() != s.path.resolve()] + [str(s.path)]
             self.report, self._replace = None, None
             name = s.path.name if s.path else ""
-            text = f"{name}: headline error {h.headline.error_pct:.2f} % with {h.model}; space checks effects, f refits"
+            if h.headline.judged:
+                text = (f"{name}: headline error {h.headline.error_pct:.2f} % with {h.model}; space checks effects, "
+                        "f refits")
+            else:
+                text = f"{name}: {h.model} not judged: {h.headline.verdict().removeprefix('NOT JUDGED: ')}"
             if s.notes:
                 text += "; note: " + "; ".join(s.notes)
         else:
-            before = s.history[-2].headline.error_pct
-            text = f"{h.change}: headline error {before:.2f} % -> {h.headline.error_pct:.2f} %"
-        self.status.show(text, "ok")
+            before = headline_words(s.history[-2].headline).removesuffix(" ok")
+            text = f"{h.change}: headline error {before} -> {headline_words(h.headline).removesuffix(' ok')}"
+        self.status.show(text, "ok" if h.headline.judged else "info")
         shown = all(node.display for node in self.ancestors_with_self if hasattr(node, "display"))
         if shown and not self._typed:  # (not while another screen is in front: focusing would switch to this one)
             self.query_one(EffectList).focus()

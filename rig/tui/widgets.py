@@ -18,6 +18,8 @@ from textual.strip import Strip
 from textual.widgets import DataTable, Label, OptionList, ProgressBar, SelectionList, Static
 from textual_plotext import PlotextPlot
 
+from rig.diagnosis import Headline
+
 from .live import RunState, format_duration
 from .preview import shrink
 from .results_service import BinRow, CandidateRow, FitRow, HistoryEntry, ShapeCurve
@@ -85,6 +87,14 @@ class SigmaPlot(PlotextPlot):
         self.refresh()
 
 
+def headline_words(headline: Headline) -> str:
+    """A headline error as the chart shows it: "1.10 % ok" within noise, "11.36 %" beyond, "not judged" where no
+    bin holds enough pixels to compare sigma in (a recording a few pixels wide; its error is nan)."""
+    if not headline.judged:
+        return "not judged"
+    return f"{headline.error_pct:.2f} %{' ok' if headline.within_noise else ''}"
+
+
 class HeadlineChart(Static):
     """The headline error after each change of the model, as bars, with the level noise alone gives.
     A change whose error is within noise says "ok" (the bar's colour says it too). The bars take the width
@@ -95,26 +105,24 @@ class HeadlineChart(Static):
 
     def show_history(self, history: Sequence[HistoryEntry]) -> None:
         self.history = list(history)
-        self.plain = "\n".join(f"{h.change}: {h.headline.error_pct:.2f} %{' ok' if h.headline.within_noise else ''}"
-                               for h in history)
+        self.plain = "\n".join(f"{h.change}: {headline_words(h.headline)}" for h in history)
         if not history:
             self.update("")
             return
         label_w, value_w = 14, len("100.00 % ok")
         width = max(4, (self.content_size.width or 37) - label_w - value_w - 2)
-        top = max(h.headline.error_pct for h in history) or 1.0
+        top = max((h.headline.error_pct for h in history if h.headline.judged), default=0.0) or 1.0
         t = Table.grid(padding=(0, 1))
         t.add_column(width=label_w, overflow="fold")
         t.add_column(no_wrap=True, width=width)
         t.add_column(no_wrap=True, width=value_w)
-        for h in history:
-            n = min(h.headline.error_pct / top, 1.0) * width
+        for h in history:  # no bar where nothing was judged (the error is nan there)
+            n = min(h.headline.error_pct / top, 1.0) * width if h.headline.judged else 0.0
             bar = "█" * int(n) + ("▌" if n - int(n) >= 0.5 else "")
             style = "green" if h.headline.within_noise else "red"
-            ok = " ok" if h.headline.within_noise else ""
-            t.add_row(h.change, Text(bar, style=style), f"{h.headline.error_pct:.2f} %{ok}")
+            t.add_row(h.change, Text(bar, style=style), headline_words(h.headline))
         last = history[-1].headline
-        t.add_row("noise alone", "", f"{last.noise_pct:.2f} %")
+        t.add_row("noise alone", "", f"{last.noise_pct:.2f} %" if last.judged else "-")
         self.update(t)
 
     def on_resize(self) -> None:
