@@ -17,7 +17,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.camera import CameraInfo, CameraSettings, DepthCamera, Frame
+from drivers.camera import CameraInfo, CameraSettings, DepthCamera, Frame, Intrinsics
 from drivers.errors import CameraError
 
 from .plan_values import numbers, whole
@@ -59,6 +59,10 @@ class Region:
     def as_list(self) -> list[int]:
         return [self.x_px, self.y_px, self.width_px, self.height_px]
 
+    def words(self) -> str:
+        """"40x24 px at column 10, row 5"."""
+        return f"{self.width_px}x{self.height_px} px at column {self.x_px}, row {self.y_px}"
+
     def check_fits(self, width_px: int, height_px: int) -> None:
         """ValueError in one line when the region reaches outside a `width_px` x `height_px` image."""
         if self.x_px + self.width_px > width_px or self.y_px + self.height_px > height_px:
@@ -71,14 +75,17 @@ class Region:
         """The region of `image` (rows, columns), as a contiguous array."""
         return np.ascontiguousarray(image[self.y_px:self.y_px + self.height_px, self.x_px:self.x_px + self.width_px])
 
+    def intrinsics(self, i: Intrinsics) -> Intrinsics:
+        """The whole image's intrinsics `i` for the region: its size, the principal point in its pixels (cx - x,
+        cy - y), so that each pixel keeps its ray (pinhole: u - cx is unchanged)."""
+        return dataclasses.replace(i, width=self.width_px, height=self.height_px, cx=i.cx - self.x_px,
+                                   cy=i.cy - self.y_px)
+
     def info(self, info: CameraInfo) -> CameraInfo:
-        """`info` for the region: its size, the principal point in its pixels (cx - x, cy - y), the whole image and
-        the region kept in `extra`."""
+        """`info` for the region: its `intrinsics`, the whole image and the region kept in `extra`."""
         i = info.intrinsics
-        inner = dataclasses.replace(i, width=self.width_px, height=self.height_px, cx=i.cx - self.x_px,
-                                    cy=i.cy - self.y_px)
         extra = {**info.extra, "region_px": self.as_list(), "full_image_px": [i.width, i.height]}
-        return dataclasses.replace(info, intrinsics=inner, extra=extra)
+        return dataclasses.replace(info, intrinsics=self.intrinsics(i), extra=extra)
 
 
 def region_words(camera: dict) -> str:
@@ -88,8 +95,7 @@ def region_words(camera: dict) -> str:
     region, full = (extra.get(k) if isinstance(extra, dict) else None for k in ("region_px", "full_image_px"))
     if not (isinstance(region, list) and len(region) == 4 and isinstance(full, list) and len(full) == 2):
         return ""
-    x, y, w, h = region
-    return f"{w}x{h} px at column {x}, row {y} of the camera's {full[0]}x{full[1]} image"
+    return f"{Region(*region).words()} of the camera's {full[0]}x{full[1]} image"
 
 
 def through_region(camera: DepthCamera, region_px: Any) -> DepthCamera:

@@ -56,7 +56,7 @@ def test_a_whole_experiment_from_the_keyboard(tmp_path, monkeypatch, earlier):
             await pilot.press("f1", "v")
             preview = app.query_one("#preview-info")
             await until(pilot, lambda: "fill" in preview.plain, "the live preview")
-            assert re.search(r"wall: 1\.0\d\d m on the axis, fill 100\.0 %", preview.plain), preview.plain
+            assert re.search(r"wall: 1\.0\d{3} m \+/- [\d.]+ mm on the axis, fill 100\.0 %", preview.plain), preview.plain
             tilt, se = (float(g) for g in re.search(r"tilt: ([-+][\d.]+) \+/- ([\d.]+) deg", preview.plain).groups())
             assert abs(tilt) <= 4 * max(se, 0.005)  # (0.005: the last digit shown)
             assert "bright" in app.query_one("#depth-image").plain

@@ -19,6 +19,7 @@ from textual.css.query import NoMatches
 from textual.widgets import Checkbox, Footer, Input, Select, TabbedContent, TabPane, Tabs
 
 from drivers.camera import CameraSettings
+from protocols.region_of_interest import Region
 
 from .devices_pane import DevicesPane
 from .dialogs import AskPath, ConfirmQuit, HelpScreen, TextScreen
@@ -241,7 +242,7 @@ class RigApp(App):
             return
         settings = self._camera_settings()
         if settings is not None:
-            self.devices.start_preview(settings)
+            self.devices.start_preview(settings, Region.of(self.experiment.settings().value("region_px")))
 
     def _camera_settings(self) -> CameraSettings | None:
         """The experiment's projector, exposure and gain (None, said on the Devices screen, if they are refused)."""

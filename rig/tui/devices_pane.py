@@ -15,11 +15,13 @@ from drivers.camera import CameraSettings
 from drivers.errors import DeviceError
 
 from protocols.plan_check import RigLimits
+from protocols.region_of_interest import Region
 
 from .devices_service import DeviceReport, DeviceSession, TestCapture, describe_error
 from .fields import PasteField
-from .preview import WallView, view_rows, wall_view
-from .widgets import DepthImage, KeyValues, StatusLine
+from .image_widgets import DepthImage, IrImage
+from .preview import WallView, frame_view, view_rows
+from .widgets import KeyValues, StatusLine
 
 #: the live preview: a frame this often (s), and how long stopping it waits for its frame at most (s)
 PREVIEW_PERIOD_S = 0.2
@@ -79,7 +81,9 @@ class DevicesPane(Vertical):
                 yield KeyValues(id="capture-info")
                 with Vertical(id="preview-box"):
                     yield KeyValues(id="preview-info")
-                    yield DepthImage(id="depth-image")
+                    with Horizontal(id="preview-images"):
+                        yield DepthImage(id="depth-image")
+                        yield IrImage(id="ir-image")
 
     # -- what the app asks ------------------------------------------------------------------
     @property
@@ -115,15 +119,16 @@ class DevicesPane(Vertical):
     def previewing(self) -> bool:
         return not self._preview_ended.is_set()
 
-    def start_preview(self, settings: CameraSettings) -> None:
+    def start_preview(self, settings: CameraSettings, region: Region | None = None) -> None:
         """v: frames from the camera where the stage stands, five a second, with the experiment's settings: the
-        depth image, its fill rate and the wall's plane (`preview.wall_view`), until `stop_preview`."""
+        depth and IR images, the fill rate, the wall's plane and the IR level (`preview.frame_view`), of the
+        experiment's region of interest when it has one, until `stop_preview`."""
         self._stop_preview.clear()
         self._preview_ended.clear()
         self.query_one("#preview-box").display = True
         self.query_one("#capture-info", KeyValues).display = False
         self.status.show("live preview: v stops it", "busy")
-        self._preview(settings)
+        self._preview(settings, region)
 
     def stop_preview(self) -> None:
         """End the preview and wait (a frame at most) for its thread to let go of the camera."""
@@ -133,7 +138,7 @@ class DevicesPane(Vertical):
         self.query_one("#capture-info", KeyValues).display = True
 
     @work(thread=True, exclusive=True, group="preview")
-    def _preview(self, settings: CameraSettings) -> None:
+    def _preview(self, settings: CameraSettings, region: Region | None) -> None:
         worker = get_current_worker()
         try:
             camera = self.session.devices.camera if self.session.devices else None
@@ -141,9 +146,14 @@ class DevicesPane(Vertical):
                 raise DeviceError("not connected: press c to connect")
             camera.configure(settings)
             info = camera.info()
+            if region is not None:
+                try:
+                    region.check_fits(info.intrinsics.width, info.intrinsics.height)
+                except ValueError as e:  # the words a run's camera refuses it with (`RegionCamera.open`)
+                    raise DeviceError(f"{camera.name}: {e}") from None
             while not self._stop_preview.is_set() and not worker.is_cancelled:
-                for frame in camera.frames(1):
-                    self.post_message(self.PreviewFrame(wall_view(frame.depth, info.intrinsics, info.depth_scale_m)))
+                for frame in camera.frames(1, ir=True):
+                    self.post_message(self.PreviewFrame(frame_view(frame, info, camera.ir_full_scale_dn, region)))
                 self._stop_preview.wait(PREVIEW_PERIOD_S)
         except DeviceError as e:
             self.post_message(self.Done("preview", error=str(e)))
@@ -156,7 +166,8 @@ class DevicesPane(Vertical):
         if self._stop_preview.is_set():
             return
         self.query_one("#preview-info", KeyValues).show_rows(view_rows(m.view))
-        self.query_one(DepthImage).show_image(m.view.image_m)
+        self.query_one(DepthImage).show_image(m.view.image_m, m.view.inside)
+        self.query_one(IrImage).show_ir(m.view.ir, m.view.inside)
 
     def released(self, why: str) -> None:
         """The run takes the devices (and closes them here, in its own thread): say so."""

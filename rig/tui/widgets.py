@@ -5,8 +5,6 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
-import numpy as np
-from rich.color import Color as RichColor
 from rich.segment import Segment
 from rich.style import Style as RichStyle
 from rich.table import Table
@@ -21,7 +19,6 @@ from textual_plotext import PlotextPlot
 from rig.diagnosis import Headline
 
 from .live import RunState, format_duration
-from .preview import shrink
 from .results_service import BinRow, CandidateRow, FitRow, HistoryEntry, ShapeCurve
 
 
@@ -259,51 +256,3 @@ class LiveStats(KeyValues):
             ("refused", f"{s.refused} (wrong settings)"),
             ("output", s.output or "-"),
         ])
-
-
-#: near to far: viridis's colours, bright for near (Matplotlib's `viridis` at 1, 0.75, 0.5, 0.25, 0)
-DEPTH_COLOURS = ((253, 231, 37), (94, 201, 98), (33, 145, 140), (59, 82, 139), (68, 1, 84))
-
-
-def depth_colour(t: float) -> RichColor:
-    """The colour at `t` in [0, 1] (0: near) of DEPTH_COLOURS, interpolated."""
-    t = min(max(t, 0.0), 1.0) * (len(DEPTH_COLOURS) - 1)
-    i = min(int(t), len(DEPTH_COLOURS) - 2)
-    f = t - i
-    return RichColor.from_rgb(*(round(a + (b - a) * f) for a, b in zip(DEPTH_COLOURS[i], DEPTH_COLOURS[i + 1])))
-
-
-class DepthImage(Static):
-    """A depth image in the terminal: two pixels a cell (an upper half block, coloured as the upper pixel on the
-    lower's colour), near bright, far dark, no depth black; the range of the colours in words under it."""
-
-    plain = ""
-
-    def blocks_for(self, shape: tuple[int, int]) -> tuple[int, int]:
-        """(rows, columns) of pixels that fill this widget's cells (but its last line) and keep the image's aspect."""
-        rows, cols = 2 * max(1, (self.content_size.height or 9) - 1), max(1, self.content_size.width or 38)
-        wide = round(rows * shape[1] / shape[0])
-        return (rows, wide) if wide <= cols else (max(2, round(cols * shape[0] / shape[1])), cols)
-
-    def show_image(self, image_m: np.ndarray) -> None:
-        """Show the image, shrunk (`preview.shrink`) to the widget's cells."""
-        image_m = shrink(image_m, self.blocks_for(image_m.shape))
-        have = image_m[np.isfinite(image_m)]
-        if have.size == 0:
-            self.plain = "no depth"
-            self.update("no pixel has a depth")
-            return
-        near, far = (float(v) for v in np.percentile(have, [2, 98]))
-        span = max(far - near, 1e-6)
-        text = Text()
-        rows = image_m if image_m.shape[0] % 2 == 0 else np.vstack([image_m, np.full((1, image_m.shape[1]), np.nan)])
-        black = RichColor.from_rgb(0, 0, 0)
-        for top, bottom in zip(rows[0::2], rows[1::2]):
-            for a, b in zip(top, bottom):
-                fg = depth_colour((a - near) / span) if math.isfinite(a) else black
-                bg = depth_colour((b - near) / span) if math.isfinite(b) else black
-                text.append("▀", RichStyle(color=fg, bgcolor=bg))
-            text.append("\n")
-        self.plain = f"bright {near:.3f} m to dark {far:.3f} m; black: none"
-        text.append(self.plain)
-        self.update(text)
