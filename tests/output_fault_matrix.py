@@ -8,25 +8,25 @@ absent (never a part), and what else is left in the folder, and after the next r
     .venv/bin/python -m tests.output_fault_matrix --json           # the trials and findings, as JSON
     .venv/bin/python -m tests.output_fault_matrix --calls write,fsync,rename,unlink ...   # only these calls
 
-One process imports rig once and forks a child for each trial; strace attaches to the child (`strace -p`) before it
-starts the command, so the N-th traced call is the command's own and each trial costs the command, not a new
-interpreter's ~1.5 s of imports. The process runs single-threaded (OpenBLAS with one thread), as a forked command
-must.
+One process imports rig once and forks a child for each trial (tests/forked_rig.py); strace attaches to the child
+(`strace -p`) before it starts the command, so the N-th traced call is the command's own and each trial costs the
+command, not a new interpreter's ~1.5 s of imports.
 """
 
 from __future__ import annotations
 
-import gc
 import json
 import os
+import re
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy: a fork copies only the calling thread
+from tests import forked_rig
+from tests.forked_rig import run
+
+forked_rig.for_forking()  # before numpy is imported
 
 CALLS = ("write", "fsync", "rename", "unlink", "linkat", "renameat2")
 FAULTS = ("signal=KILL", "error=ENOSPC")
@@ -72,70 +72,6 @@ def others(d: Path, outputs: list[str]) -> list[str]:
                   if p.is_file() and p.name not in ("a.h5", "b.h5", ".log") and str(p.relative_to(d)) not in outputs)
 
 
-def allow_tracing_by_any() -> None:
-    """Let strace, this child's sibling, attach: with Yama's ptrace_scope 1 (Ubuntu's default) only an ancestor may
-    trace a process that has not said otherwise, and root's CAP_SYS_PTRACE is what lets CI attach without this.
-    prctl(PR_SET_PTRACER, PR_SET_PTRACER_ANY); a kernel without Yama ignores it."""
-    import ctypes
-
-    pr_set_ptracer, any_tracer = 0x59616D61, ctypes.c_ulong(-1)
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_ptracer, any_tracer, 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
-
-
-def run(args: list[str], cwd: Path, strace_args: list[str] | None) -> int:
-    """`rig *args` in a forked child in `cwd`, under `strace -p` with `strace_args` (None: untraced); its wait status.
-    The child waits on a pipe until strace is attached (its TracerPid in /proc), then runs the command and leaves
-    with os._exit: nothing of this process (its buffers, its temporary folders) is flushed or removed twice."""
-    from rig.cli import main
-
-    ready_r, ready_w = os.pipe()
-    gc.freeze()  # this process's objects out of the child's collections: else they touch, and so copy, every page
-    pid = os.fork()
-    if pid == 0:  # the child: whatever happens in it (a flush failing with the injected ENOSPC), it ends here
-        code = 1
-        try:
-            allow_tracing_by_any()
-            os.close(ready_w)
-            os.read(ready_r, 1)
-            os.chdir(cwd)
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, 1)
-            os.dup2(null, 2)
-            # block-buffered, as on a pipe or a file: the same writes whether this process is on a terminal or not
-            sys.stdout = open(1, "w", closefd=False)  # noqa: SIM115
-            sys.stderr = open(2, "w", closefd=False)  # noqa: SIM115
-            try:
-                code = main(args)
-            except SystemExit as e:
-                code = e.code if isinstance(e.code, int) else 1
-            sys.stdout.flush()
-            sys.stderr.flush()
-        except BaseException:  # noqa: BLE001
-            code = 70
-        finally:
-            os._exit(code)
-    os.close(ready_r)
-    tracer = None
-    if strace_args is not None:
-        tracer = subprocess.Popen(["strace", *strace_args, "-p", str(pid)], stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 30
-        while "TracerPid:\t0\n" in Path(f"/proc/{pid}/status").read_text():
-            if time.monotonic() > deadline or tracer.poll() is not None:
-                os.kill(pid, 9)
-                raise RuntimeError("strace did not attach to the forked command (is ptrace allowed here?)")
-            time.sleep(0.002)
-    os.write(ready_w, b"go")
-    os.close(ready_w)
-    _, status = os.waitpid(pid, 0)
-    if tracer is not None:
-        tracer.wait(timeout=30)
-    return status
-
-
 def fonts_in_memory() -> None:
     """matplotlib's FreeType reads its font files through Python, a seek and a read for each glyph it draws: 17,000
     system calls in one `rig fit --report`, and under `strace -p` each stops the child twice (3-4x the command's
@@ -159,22 +95,9 @@ def fonts_in_memory() -> None:
 
 
 def warm(args: list[str], recordings: tuple[Path, Path], outputs: list[str]) -> None:
-    """The command once in this process, so that its first-time work (the imports it makes, numba's kernels loaded from
-    their cache) is done before the forks: else every trial pays it (1.7 s of CPU against 0.08 s for `rig fit`), and
-    the children's calls are the same in each, as the counting run's."""
-    import contextlib
-    import io
-
-    from rig.cli import main
-
-    here = os.getcwd()
-    with tempfile.TemporaryDirectory() as t, contextlib.redirect_stdout(io.StringIO()), \
-            contextlib.redirect_stderr(io.StringIO()):
-        os.chdir(folder(Path(t), recordings, outputs))
-        try:
-            main(args)
-        finally:
-            os.chdir(here)
+    """The command once in this process (`forked_rig.warm`), in a folder of its own."""
+    with tempfile.TemporaryDirectory() as t:
+        forked_rig.warm(args, folder(Path(t), recordings, outputs))
 
 
 def sweep(name: str, recordings: tuple[Path, Path], calls: tuple[str, ...] = CALLS) -> dict:
@@ -187,7 +110,8 @@ def sweep(name: str, recordings: tuple[Path, Path], calls: tuple[str, ...] = CAL
         log = (d / ".log").read_text().splitlines()
         reference = {o: (d / o).read_bytes() for o in outputs}
         clean_left = others(d, outputs)
-    counts = {call: sum(line.startswith(f"{call}(") for line in log) for call in calls}
+    # strace -f prefixes each line with its process's id
+    counts = {call: sum(re.match(rf"(\d+ +)?{call}\(", line) is not None for line in log) for call in calls}
     findings = [f"a clean run left {clean_left}"] if clean_left else []
     findings += [f"a clean run did not write {o}" for o in outputs if reference[o] == b"OLD"]
     trials = 0

@@ -9,6 +9,7 @@ synchronously copy object ... errno = 28`) at every pwrite64 of the final assemb
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from forked_rig import ForkServer
 from protocols.recording import Recording
 from tiny_runs import tiny_run_env
 
@@ -114,15 +116,33 @@ def test_a_full_disk_at_every_write_of_a_run_is_one_line_and_resume_finishes_it(
     assert refused >= len(calls) - 2, (refused, len(calls))  # the faults took effect (8 of 9 here; strace 6.1)
 
 
-def test_a_full_disk_at_every_write_of_an_import_is_one_line_and_leaves_nothing(tmp_path):
+@pytest.fixture(scope="module")
+def forked():
+    """One process that has imported rig, to fork the import's trials from (tests/forked_rig.py): each trial then
+    costs the import, not an interpreter's start-up too (16 trials: ~13 s of CPU as processes of their own)."""
+    server = ForkServer()
+    yield server
+    server.close()
+
+
+def test_a_full_disk_at_every_write_of_an_import_is_one_line_and_leaves_nothing(tmp_path, forked):
     # every write; of the provenance's pwrite64s (HDF5 writing into the import's temporary file) the first and last
     # (every index: tests/fault_matrix.py)
-    total = _calls(IMPORT, tmp_path)
+    (tmp_path / "first").mkdir()
+    forked.warm(IMPORT, tmp_path / "first")  # its imports (rosbags, ...) and first-time work, before any fork
+    shutil.rmtree(tmp_path / "first")
+    log = tmp_path.parent / f"{tmp_path.name}.strace"
+    assert forked.run(IMPORT, tmp_path, ["-o", str(log), "-e", "trace=write,pwrite64"]).returncode == 0
+    total = {call: sum(re.match(rf"(\d+ +)?{call}\(", line) is not None for line in log.read_text().splitlines())
+             for call in ("write", "pwrite64")}
+    (tmp_path / "d.h5").unlink()
     calls = [("write", n) for n in range(1, total["write"] + 1)] + [("pwrite64", 1), ("pwrite64", total["pwrite64"])]
     assert len(calls) >= 5
     refused = 0
-    for inject in calls:
-        p = _rig(IMPORT, tmp_path, inject)
+    for call, n in calls:
+        p = forked.run(IMPORT, tmp_path, ["-o", "/dev/null", "-e", f"trace={call}",
+                                          "-e", f"inject={call}:error=ENOSPC:when={n}"])
+        inject = (call, n)
         refused += p.returncode != 0
         left = sorted(x.name for x in tmp_path.iterdir())
         if p.returncode == 0 or _complete(tmp_path / "d.h5"):  # the fault hit stdout, after the import was whole
