@@ -240,6 +240,9 @@ def diagnose_a_2_pixel_wide_recording(made):
     assert final.startswith("active: ") and "NOT JUDGED: no range-and-radius bin holds 20 pixels" in final, final
     assert "\n  The path stopped: nothing can be judged: no range-and-radius bin holds enough pixels." in r.stdout
     assert "within noise" not in r.stdout
+    for line in r.stdout.splitlines():  # a statistic with no bin to compare is marked not judged, never "ok"
+        if "no bin to compare" in line:
+            assert line.startswith("  --  "), line
 
 
 @case

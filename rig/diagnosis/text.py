@@ -37,7 +37,8 @@ def render_text(diag: Diagnosis) -> str:
     lines += ["", "Every statistic it predicts, each against its own error (chi2 / bins, p; the verdict needs p >= "
                   f"{r.consistency.threshold_with(1):.1e} for each):"]
     for c in r.consistency.checks:
-        flag = "ok  " if c.p_value >= r.consistency.threshold_with(1) else "OFF "
+        # no bin to compare: not judged, so neither ok nor off
+        flag = "--  " if not c.dof else "ok  " if c.p_value >= r.consistency.threshold_with(1) else "OFF "
         lines.append(f"  {flag}{c.name:<26} {c.chi2:12.1f} / {c.dof:<3} p {c.p_value:.1e}   worst: {c.describe_worst()}")
     lines += ["", "Candidate effects, by evidence (BIC change; LRT statistic, df, p):"]
     for c in diag.candidates:
