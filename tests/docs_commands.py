@@ -229,7 +229,6 @@ NOT_RUN = (
 #: commands whose right exit status on a machine without hardware is not 0, and why
 EXPECTED = (
     (r"^rig devices --check realsense:", 2, "no RealSense attached: one line says so"),
-    (r"^rig fit d435\.h5", 3, "one stop: lambda not determined by the data (exit 3, README)"),
 )
 
 #: run on a pseudo-terminal for INTERACTIVE_S, then stopped as its screen says (ctrl+q; Ctrl-C), with status 0
