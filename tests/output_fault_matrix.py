@@ -72,28 +72,6 @@ def others(d: Path, outputs: list[str]) -> list[str]:
                   if p.is_file() and p.name not in ("a.h5", "b.h5", ".log") and str(p.relative_to(d)) not in outputs)
 
 
-def fonts_in_memory() -> None:
-    """matplotlib's FreeType reads its font files through Python, a seek and a read for each glyph it draws: 17,000
-    system calls in one `rig fit --report`, and under `strace -p` each stops the child twice (3-4x the command's
-    CPU). Fonts opened from memory (FT2Font takes a file object) draw the same glyphs with none. This changes what
-    matplotlib reads, not what rig writes."""
-    import io
-
-    from matplotlib import font_manager, ft2font
-
-    class FromMemory:
-        def __getattr__(self, name: str) -> object:
-            return getattr(ft2font, name)
-
-        @staticmethod
-        def FT2Font(path: object, *args: object, **kwargs: object) -> object:  # noqa: N802 (ft2font's name)
-            if isinstance(path, (str, os.PathLike)):
-                path = io.BytesIO(Path(path).read_bytes())
-            return ft2font.FT2Font(path, *args, **kwargs)
-
-    font_manager.ft2font = FromMemory()
-
-
 def warm(args: list[str], recordings: tuple[Path, Path], outputs: list[str]) -> None:
     """The command once in this process (`forked_rig.warm`), in a folder of its own."""
     with tempfile.TemporaryDirectory() as t:
@@ -166,7 +144,7 @@ def main(argv: list[str]) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    fonts_in_memory()
+    forked_rig.fonts_in_memory()
     with tempfile.TemporaryDirectory() as t:
         recs = recordings(Path(t))
         rows = []
