@@ -46,7 +46,7 @@ def trial(args: list[str], out: str, call: str, fault: str, n: int) -> tuple[str
     """(what the faulted command did, what the next command did)."""
     with tempfile.TemporaryDirectory() as d:
         cwd = Path(d)
-        fast = [] if fault == "SIGKILL" else ["--seccomp-bpf"]  # see test_enospc_injection._strace
+        fast = [] if fault == "SIGKILL" else ["--seccomp-bpf"]  # strace 6.1 with --seccomp-bpf and signal=KILL let the command finish
         p = subprocess.run(["strace", *fast, "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e",
                             f"inject={call}:{FAULTS[fault]}:when={n}", *RIG, *args], cwd=cwd, capture_output=True, text=True,
                            env=ENV)

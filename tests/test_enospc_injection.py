@@ -1,14 +1,14 @@
 """A full disk at any write of `rig run` and `rig import`, injected by the kernel: one line, keeps what is saved, no stray file.
 
 The disk is filled by the kernel, not by us: strace injects ENOSPC into one system call of the real command
-(`strace -f -e inject=pwrite64:error=ENOSPC:when=N`), h5py's and Python's writes alike. strace is installed by the
-project's set-up (dev.py), as libusb is. Issue 28 found a 30-line h5py traceback (`RuntimeError: Unable to
+(`strace -f -e inject=pwrite64:error=ENOSPC:when=N`), h5py's and Python's writes alike; the command is forked from
+one process that has imported rig and run it once (tests/forked_rig.py), and strace attaches to the fork. strace is
+installed by the project's set-up (dev.py), as libusb is. Issue 28 found a 30-line h5py traceback (`RuntimeError: Unable to
 synchronously copy object ... errno = 28`) at every pwrite64 of the final assembly, and a lock file left behind.
 """
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import subprocess
@@ -19,55 +19,27 @@ import pytest
 
 from forked_rig import ForkServer
 from protocols.recording import Recording
-from tiny_runs import tiny_run_env
 
 pytestmark = pytest.mark.slow
 
 
 ROOT = Path(__file__).resolve().parents[1]
-RIG = [str(Path(sys.executable).parent / "rig")]
+RIG = [str(Path(sys.executable).parent / "rig")]  # tests/fault_matrix.py starts the commands as processes
 RUN = ["run", "--protocol", "perpendicular", "--camera", "fake:width=16,height=9,seed=1", "--stage", "fake:",
        "-o", "run.h5", "--stops", "0.5:1.5:0.5", "--frames", "5", "-q"]
 BAG = ROOT / "tests" / "vendor" / "real" / "realsense" / "single_depth_color_640x480.bag"
 IMPORT = ["import", str(BAG), "-o", "d.h5", "--distance-m", "1.6", "-q"]
 
 
-def _strace(*, kill: bool = False) -> list[str]:
-    """strace, stopping the command only at the system calls it traces (--seccomp-bpf: the kernel filters the rest).
-    Without it every system call of the traced Python (thousands of stat, read, mmap while it imports) stops twice
-    for strace: 0.75 s of a 2.6 s `rig import`. The N-th traced call is the same either way (the counts agree), and
-    where the kernel has no seccomp strace traces the old way. Not for `kill`: strace 6.1 with --seccomp-bpf and
-    inject=...:signal=KILL let the command finish and was killed itself."""
-    path = shutil.which("strace")
-    assert path, "strace is not installed; `python3 dev.py setup` installs it (apt-get install strace)"
-    return [path] if kill else [path, "--seccomp-bpf"]
-
-
-def _env(args: list[str]) -> dict[str, str]:
-    """A tiny fake run goes without numba's compiler (tests/tiny_runs.py); an import reads a real 640x480 bag.
-    Neither writes bytecode: the N-th write must be the command's own whatever the cache holds (a counting run
-    that first imported rosbags wrote ~250 .pyc files, and the test then faulted each of those writes)."""
-    return {**(tiny_run_env() if args[0] == "run" else os.environ), "PYTHONDONTWRITEBYTECODE": "1"}
-
-
-def _calls(args: list[str], cwd: Path) -> dict[str, int]:
-    """How many times the command makes each of write and pwrite64 on a disk with room (one traced run)."""
-    log = cwd / "calls.strace"
-    subprocess.run([*_strace(), "-f", "-o", str(log), "-e", "trace=write,pwrite64", *RIG, *args], cwd=cwd, check=True,
-                   capture_output=True, timeout=120, env=_env(args))
-    lines = log.read_text().splitlines()
-    counts = {call: sum(f"{call}(" in line for line in lines) for call in ("write", "pwrite64")}
-    for p in cwd.iterdir():
-        if p != log:
-            shutil.rmtree(p) if p.is_dir() else p.unlink()
-    log.unlink()
-    return counts
+def _strace_present() -> None:
+    assert shutil.which("strace"), "strace is not installed; `python3 dev.py setup` installs it (apt-get install strace)"
 
 
 def _forked(forked, args: list[str], cwd: Path, inject: tuple[str, int] | None = None,
             error: str = "ENOSPC") -> subprocess.CompletedProcess:
     """`rig *args` forked from the module's fork server (tests/forked_rig.py), with `error` injected at the N-th
     `call` of `inject`; the server runs each command once in itself first (on a copy of `cwd`)."""
+    _strace_present()
     forked.warm_once(args, cwd)
     strace = None
     if inject is not None:

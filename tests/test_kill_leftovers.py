@@ -1,7 +1,7 @@
 """A process killed at an exact system call leaves nothing the next run, resume or import does not clean up.
 
 The kill comes from the kernel at the N-th call (`strace -f -e inject=write:signal=KILL:when=N`), in the real
-command, at the lock, the middle and the end of a small run (every index: tests/fault_matrix.py). Issue 28 found that a kill during the final assembly left `.run.h5.<pid>.assembling` (a full-size copy)
+command (forked from one process that has imported rig: tests/forked_rig.py), at the lock, the middle and the end of a small run (every index: tests/fault_matrix.py). Issue 28 found that a kill during the final assembly left `.run.h5.<pid>.assembling` (a full-size copy)
 that no later --resume removed (14 of 40 injections), and a kill in the header write left `run.h5.<pid>.tmp`.
 """
 
@@ -15,30 +15,32 @@ from pathlib import Path
 
 from protocols.leftovers import dead_leftovers
 from protocols.recording import Recording
-from test_enospc_injection import IMPORT, RUN, _calls, _env, _strace
+from test_enospc_injection import IMPORT, RUN, _forked, _forked_calls, forked  # noqa: F401 (a fixture)
 import pytest
 
 pytestmark = pytest.mark.slow
 
 
-RIG = [str(Path(sys.executable).parent / "rig")]
 
 
-def _killed(args: list[str], cwd: Path, call: str, n: int) -> int:
-    cmd = [*_strace(kill=True), "-f", "-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:signal=KILL:when={n}",
-           *RIG, *args]
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, timeout=120, env=_env(args)).returncode
+def _killed(forked, args: list[str], cwd: Path, call: str, n: int) -> int:
+    """`rig *args` forked from the fork server (tests/forked_rig.py) and killed by the kernel at its N-th `call`."""
+    forked.warm_once(args, cwd)
+    strace = ["-o", "/dev/null", "-e", f"trace={call}", "-e", f"inject={call}:signal=KILL:when={n}"]
+    return forked.run(args, cwd, strace).returncode
 
 
-def _main_writes(args: list[str], cwd: Path) -> int:
+def _main_writes(forked, args: list[str], cwd: Path) -> int:
     """The writes of the rig process itself (strace counts each process's calls apart for `when=`)."""
-    log = cwd / "w.strace"
-    subprocess.run([*_strace(), "-f", "-o", str(log), "-e", "trace=write", *RIG, *args], cwd=cwd, check=True,
-                   capture_output=True, timeout=120, env=_env(args))
+    forked.warm_once(args, cwd)
+    log = cwd.parent / f"{cwd.name}.strace"
+    assert forked.run(args, cwd, ["-o", str(log), "-e", "trace=write"]).returncode == 0
     per_pid: dict[str, int] = {}
     for line in log.read_text().splitlines():
-        if " write(" in line:
-            per_pid[line.split()[0]] = per_pid.get(line.split()[0], 0) + 1
+        if "write(" in line:
+            pid = line.split()[0] if not line.startswith("write(") else "the command"
+            per_pid[pid] = per_pid.get(pid, 0) + 1
+    log.unlink()
     for p in list(cwd.iterdir()):
         p.unlink() if p.is_file() else None
     shutil.rmtree(cwd / "run.h5.stops", ignore_errors=True)
@@ -52,16 +54,16 @@ def _strays(cwd: Path) -> list[str]:
     return top + inside
 
 
-def test_kills_during_a_run_leave_nothing_after_the_resume(tmp_path):
-    total = _main_writes(RUN, tmp_path)
+def test_kills_during_a_run_leave_nothing_after_the_resume(tmp_path, forked):
+    total = _main_writes(forked, RUN, tmp_path)
     strays = 0
     # the rig process writes the lock, the header, each stop's file, the assembled file, then two lines to stdout;
     # killed in the header, the first stop and the assembly (every index: tests/fault_matrix.py)
     for call, n in [("write", 2), ("write", 3), ("write", total - 2)]:
-        _killed(RUN, tmp_path, call, n)
+        assert _killed(forked, RUN, tmp_path, call, n) == -9, (call, n)
         strays += len(_strays(tmp_path))
         again = [*RUN, "--resume"] if (tmp_path / "run.h5").exists() else RUN
-        p = subprocess.run(RIG + again, cwd=tmp_path, capture_output=True, text=True, timeout=120, env=_env(again))
+        p = _forked(forked, again, tmp_path)
         assert p.returncode == 0, (call, n, p.stderr)
         assert sorted(x.name for x in tmp_path.iterdir()) == ["run.h5"], (call, n, list(tmp_path.iterdir()))
         with Recording(tmp_path / "run.h5") as rec:
@@ -70,12 +72,12 @@ def test_kills_during_a_run_leave_nothing_after_the_resume(tmp_path):
     assert strays > 0  # the kills did leave something behind, which the next run removed
 
 
-def test_a_killed_import_is_cleaned_up_by_the_next_import(tmp_path):
-    total = _calls(IMPORT, tmp_path)["pwrite64"]  # the provenance, written into the import's temporary file
-    _killed(IMPORT, tmp_path, "pwrite64", total // 2)
+def test_a_killed_import_is_cleaned_up_by_the_next_import(tmp_path, forked):
+    total = _forked_calls(forked, IMPORT, tmp_path)["pwrite64"]  # the provenance, written into the import's temp file
+    assert _killed(forked, IMPORT, tmp_path, "pwrite64", total // 2) == -9
     left = sorted(p.name for p in tmp_path.iterdir())
     assert left and all(".importing" in name for name in left), left
-    p = subprocess.run(RIG + IMPORT, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    p = _forked(forked, IMPORT, tmp_path)
     assert p.returncode == 0, p.stderr
     assert sorted(x.name for x in tmp_path.iterdir()) == ["d.h5"]
 
