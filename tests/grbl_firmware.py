@@ -25,8 +25,8 @@ What the firmware does on a host (2 AMD EPYC cores; "sim time" is grbl-sim's 16 
   0.56-0.66x with two busy processes on the 2 cores (GRBL's moves then take up to 1.8x as long as planned).
   GRBL's own thread spins in every wait (12 % of a core idle, 100 % in a feed hold, and for the whole first
   second of a fresh start, its settings dump waiting for the serial port). Patched (`sim-sleep`,
-  `poll-stdin-cheaply`, `grbl-thread-sleep`): 0.06 cores idle, ~0.08 moving or homing, 0.05 in a hold, 0.1 s of
-  CPU for a fresh start, and sim time within 0.1 % of real time, loaded or not (tests/vendor/grbl/README.md
+  `poll-stdin-cheaply`, `grbl-thread-sleep`): 0.04 cores idle (GRBL's thread sleeps 1 ms a pass), ~0.08 moving
+  or homing, 0.05 in a hold, 0.1 s of CPU for a fresh start, and sim time within 0.1 % of real time, loaded or not (tests/vendor/grbl/README.md
   has the table). The simulator runs its ticks in batches of up to 1 ms of sim time (an incoming byte or a
   reply GRBL queues ends a batch at once), so GRBL's main program sees steps and switches land in such batches.
 - grbl-sim runs GRBL's main program and its interrupts in two threads. Stock, they shared SREG, and one could
@@ -220,10 +220,11 @@ PATCHES: tuple[Patch, ...] = (
         "grbl-thread-sleep: realtime loop", "protocol.c",
         "void protocol_exec_rt_system()\n{\n",
         "void platform_sleep(long microsec); // rig patch: GRBL's waiting loops (idle, buffer sync, full planner,\n"
-        "// feed hold, probing) all pass here; on the host each pass sleeps 200 us instead of spinning a core\n"
+        "// feed hold, probing) all pass here; on the host each pass sleeps 1 ms instead of spinning a core (the\n"
+        "// simulator runs its ticks in batches of up to 1 ms; the stepper's segment buffer holds ~60 ms of motion)\n"
         "extern volatile uint8_t rig_isr_active; // rig_hw.c\n"
         "void protocol_exec_rt_system()\n{\n"
-        "  platform_sleep(200);\n"
+        "  platform_sleep(1000);\n"
         "  while (rig_isr_active) { platform_sleep(50); } // an interrupt from rig_hw.c is running: on the AVR the\n"
         "  // main program would be frozen meanwhile (the limit interrupt sets ALARM:3 in mc_reset(), sleeps $1 ms in\n"
         "  // st_go_idle(), then sets ALARM:1: GRBL must not see the 3)\n",
