@@ -5,6 +5,7 @@ Creates .venv/ beside this file (once), installs rig into it (again whenever pyp
 changes), then runs the demo or the test suite. Needs only Python 3.11+.
 
   python3 dev.py test             the whole suite, then its numeric tests again on other floating-point paths,
+                                  the benchmark's quick tier (benchmarks/ci_tier.py: ratios printed, not judged),
                                   and the CPU each part took (by test file in .venv/suite-cpu.md)
   python3 dev.py test --quick     the inner loop, under a minute: the tests not marked slow
   python3 dev.py test --fp-paths  only the numeric tests, on other floating-point paths (docs/testing.md)
@@ -183,7 +184,9 @@ def main(argv: list[str]) -> int:
                             stdout=subprocess.DEVNULL, env=child_env() | env)
             clock.lap("kernels")
         code = max(code, subprocess.call([str(BIN / "python"), "-m", "pytest", *args], cwd=ROOT, env=child_env() | env))
-        clock.lap(name)
+    if not rest and not fp_only:  # the whole suite: the benchmark's quick tier, printed beside the last recorded
+        code = max(code, subprocess.call([str(BIN / "python"), "-m", "benchmarks.ci_tier"], cwd=ROOT, env=child_env()))
+        clock.lap("benchmarks")
     print(clock.report(), flush=True)
     return code
 
