@@ -184,6 +184,7 @@ def main(argv: list[str]) -> int:
                             stdout=subprocess.DEVNULL, env=child_env() | env)
             clock.lap("kernels")
         code = max(code, subprocess.call([str(BIN / "python"), "-m", "pytest", *args], cwd=ROOT, env=child_env() | env))
+        clock.lap(name)
     if not rest and not fp_only:  # the whole suite: the benchmark's quick tier, printed beside the last recorded
         code = max(code, subprocess.call([str(BIN / "python"), "-m", "benchmarks.ci_tier"], cwd=ROOT, env=child_env()))
         clock.lap("benchmarks")
