@@ -266,10 +266,10 @@ class GrblSim(GrblGcode, GrblSystemCommands, PtyController):
                 self.state, self._target = "Idle", None
             return
         kind, value, feed = self._queue.pop(0)
-        self._drain(now_s)  # a planner block is free: GRBL reads on
-        if kind == "dwell":
+        if kind == "dwell":  # the parser stays held until the dwell is over (then its ok, then the next line)
             self._dwell_until = now_s + value
             return
+        self._drain(now_s)  # a planner block is free: GRBL reads on
         self.state = "Jog" if kind == "jog" else "Run"
         self._start_move(value, feed, now_s)
 

@@ -101,6 +101,9 @@ SCRIPTS: dict[str, list[Send | Until | Pause]] = {
         line("G90 G21"), line("G91 G1 X-5 F600"), Until("Idle"), line("G90"), line("G0 X10"), Until("Idle"),
         line("G4 P0.2"), Send(b"?"),
     ],
+    # a dwell holds the parser (mc_dwell syncs the buffer, then sleeps in the line's execution): the line after it
+    # is read, and answered, only once the dwell's ok is out
+    "dwell": [Send(b"G4 P0.5\n$G\n", until="ok"), Send(b"?")],
     # a feed hold: Hold:1 while braking, Hold:0 once still; '~' ignored until then; a reset in each
     # ($120=5 mm/s^2: a hold from 15 mm/s brakes for 3 s, long enough to send '?', '~' and Ctrl-X meanwhile)
     "hold": [
