@@ -19,6 +19,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -118,6 +119,11 @@ def fonts_in_memory() -> None:
             return ft2font.FT2Font(path, *args, **kwargs)
 
     font_manager.ft2font = FromMemory()
+
+
+def call_counts(log_lines: list[str], calls: tuple[str, ...]) -> dict[str, int]:
+    """How many times each system call in `calls` appears in a `strace -f -o` log (its lines prefixed with a PID)."""
+    return {call: sum(re.match(rf"(\d+ +)?{call}\(", line) is not None for line in log_lines) for call in calls}
 
 
 def warm(args: list[str], cwd: Path, *, copy: bool = False) -> None:

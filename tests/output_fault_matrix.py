@@ -16,8 +16,6 @@ command, not a new interpreter's ~1.5 s of imports.
 from __future__ import annotations
 
 import json
-import os
-import re
 import shutil
 import sys
 import tempfile
@@ -88,8 +86,7 @@ def sweep(name: str, recordings: tuple[Path, Path], calls: tuple[str, ...] = CAL
         log = (d / ".log").read_text().splitlines()
         reference = {o: (d / o).read_bytes() for o in outputs}
         clean_left = others(d, outputs)
-    # strace -f prefixes each line with its process's id
-    counts = {call: sum(re.match(rf"(\d+ +)?{call}\(", line) is not None for line in log) for call in calls}
+    counts = forked_rig.call_counts(log, calls)
     findings = [f"a clean run left {clean_left}"] if clean_left else []
     findings += [f"a clean run did not write {o}" for o in outputs if reference[o] == b"OLD"]
     trials = 0

@@ -9,7 +9,6 @@ synchronously copy object ... errno = 28`) at every pwrite64 of the final assemb
 
 from __future__ import annotations
 
-import re
 import shutil
 import subprocess
 import sys
@@ -17,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from forked_rig import ForkServer
+from forked_rig import ForkServer, call_counts
 from protocols.recording import Recording
 
 pytestmark = pytest.mark.slow
@@ -59,7 +58,7 @@ def _forked_calls(forked, args: list[str], cwd: Path) -> dict[str, int]:
     log.unlink()
     for p in set(cwd.iterdir()) - before:
         shutil.rmtree(p) if p.is_dir() else p.unlink()
-    return {call: sum(re.match(rf"(\d+ +)?{call}\(", line) is not None for line in lines) for call in ("write", "pwrite64")}
+    return call_counts(lines, ("write", "pwrite64"))
 
 
 @pytest.fixture(scope="module")
